@@ -1,0 +1,36 @@
+# Two commands set everything up on a fresh machine:
+#   make demo   installs colonlight into .venv and runs the main job on an embedded synthetic clip
+#   make test   installs colonlight with its test tools into .venv and runs the test suite
+# TORCH_SPEC picks the torch build; the default is the CPU build. Example for CUDA:
+#   make demo TORCH_SPEC="torch --index-url <your CUDA wheel index>"
+
+PYTHON     ?= python3
+VENV       ?= .venv
+TORCH_SPEC ?= torch==2.13.0
+BIN        := $(VENV)/bin
+
+.PHONY: demo test install install-test benchmark clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+install: $(BIN)/python
+	$(BIN)/pip install --quiet $(TORCH_SPEC)
+	$(BIN)/pip install --quiet -e .
+
+install-test: $(BIN)/python
+	$(BIN)/pip install --quiet $(TORCH_SPEC)
+	$(BIN)/pip install --quiet -e ".[test]"
+
+demo: install
+	$(BIN)/colonlight demo
+
+test: install-test
+	$(BIN)/python -m pytest
+
+benchmark: install-test
+	$(BIN)/python -m benchmarks
+
+clean:
+	rm -rf $(VENV) colonlight-demo build *.egg-info

@@ -1,0 +1,1 @@
+"""colonlight benchmarks: `python -m benchmarks [name ...]` runs them and prints ratio tables (medians)."""

@@ -1,0 +1,122 @@
+"""Terminal display: live progress of clips and frames, the summary table, one-line errors."""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any
+
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TaskID,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+from rich.table import Table
+
+from colonlight.batch import ClipOutcome
+
+console = Console(stderr=True, highlight=False)
+out = Console(highlight=False)
+
+
+def error_line(message: str) -> None:
+    """One line on stderr, no traceback."""
+    console.print(f"[bold red]error:[/] {message}", soft_wrap=True)
+
+
+class FpsColumn(TextColumn):
+    """Frames per second of a task."""
+
+    def __init__(self) -> None:
+        super().__init__("")
+
+    def render(self, task: Any) -> Any:  # noqa: D102
+        from rich.text import Text
+
+        speed = task.finished_speed or task.speed
+        return Text(f"{speed:5.1f} fps" if speed else "   -- fps", style="cyan")
+
+
+class BatchDisplay:
+    """Progress of a batch: one bar for clips, one per running clip for its frames (fps, ETA).
+
+    With ``quiet`` nothing live is drawn: a line per finished clip instead, for logs.
+    """
+
+    def __init__(self, n_clips: int, quiet: bool = False) -> None:
+        self.quiet = quiet
+        self.progress: Progress | None = None
+        self.clip_tasks: dict[str, TaskID] = {}
+        self.started = time.perf_counter()
+        if not quiet:
+            self.progress = Progress(
+                TextColumn("{task.description}", justify="left"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                FpsColumn(),
+                TimeElapsedColumn(),
+                TimeRemainingColumn(),
+                console=console,
+                transient=False,
+            )
+            self.overall = self.progress.add_task("[bold]clips", total=n_clips)
+
+    def __enter__(self) -> BatchDisplay:
+        if self.progress:
+            self.progress.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.progress:
+            self.progress.stop()
+
+    def event(self, event: str, clip: str, data: dict[str, Any]) -> None:
+        if not self.progress:
+            return
+        if event == "start":
+            self.clip_tasks[clip] = self.progress.add_task(f"  {clip}", total=data.get("total"))
+        elif event == "frames" and clip in self.clip_tasks:
+            self.progress.update(self.clip_tasks[clip], completed=data["done"])
+        elif event == "end" and clip in self.clip_tasks:
+            task = self.clip_tasks.pop(clip)
+            self.progress.update(task, total=self.progress.tasks[task].completed)
+            self.progress.remove_task(task)
+
+    def outcome(self, o: ClipOutcome) -> None:
+        if self.progress:
+            self.progress.advance(self.overall)
+        if o.status == "failed":
+            self._print(f"[red]failed[/]  {o.error}")
+        elif o.skipped:
+            self._print(f"[dim]skipped[/] {o.name} (complete)")
+        else:
+            self._print(f"[green]done[/]    {o.name}: {o.frames} frames in {o.seconds:.1f} s")
+
+    def _print(self, text: str) -> None:
+        if self.progress:
+            self.progress.console.print(text, soft_wrap=True)
+        else:
+            console.print(text, soft_wrap=True)
+
+
+def summary(outcomes: list[ClipOutcome], seconds: float, out_dir: str) -> None:
+    """The final table: clips done/skipped/failed, frames, throughput."""
+    done = [o for o in outcomes if o.status == "done" and not o.skipped]
+    skipped = [o for o in outcomes if o.skipped]
+    failed = [o for o in outcomes if o.status == "failed"]
+    frames = sum(o.frames for o in done)
+    table = Table(title="colonlight enhance", show_header=True, header_style="bold")
+    for col in ("clips", "enhanced", "skipped", "failed", "frames", "seconds", "frames/s"):
+        table.add_column(col, justify="right")
+    table.add_row(
+        str(len(outcomes)), str(len(done)), str(len(skipped)), str(len(failed)), str(frames),
+        f"{seconds:.1f}", f"{frames / seconds:.1f}" if seconds > 0 else "-",
+    )
+    console.print(table)
+    console.print(f"outputs: {out_dir}")
+    sys.stderr.flush()

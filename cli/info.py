@@ -1,0 +1,54 @@
+"""``colonlight info``: versions, the default model and its card, the compute device, the methods."""
+
+from __future__ import annotations
+
+import json
+
+import torch
+import typer
+
+from colonlight.checkpoint import DEFAULT_WEIGHTS, load_weights
+from colonlight.errors import ColonlightError
+from colonlight.methods import available_methods
+from colonlight.provenance import library_versions
+
+from .display import out
+
+
+def info(as_json: bool = typer.Option(False, "--json", help="Machine-readable output.")) -> None:
+    """Show versions, the default model (name, sha256, card), the device and the available methods."""
+    record: dict[str, object] = {"versions": library_versions(), "methods": available_methods()}
+    try:
+        w = load_weights(None)
+        record["default_model"] = {"name": w.name, "path": str(w.path), "sha256": w.sha256, "card": w.card}
+    except ColonlightError as exc:
+        record["default_model"] = {"error": str(exc), "path": str(DEFAULT_WEIGHTS)}
+    record["device"] = {
+        "auto": "cuda:0" if torch.cuda.is_available() else "cpu",
+        "cuda_devices": torch.cuda.device_count(),
+        "torch_threads": torch.get_num_threads(),
+    }
+    if as_json:
+        out.print_json(json.dumps(record))
+        return
+    for key, val in record["versions"].items():  # type: ignore[union-attr]
+        out.print(f"{key:>24}: {val}")
+    out.print(f"{'methods':>24}: {', '.join(record['methods'])}")  # type: ignore[arg-type]
+    dm = record["default_model"]
+    assert isinstance(dm, dict)
+    if "error" in dm:
+        out.print(f"{'default model':>24}: [red]{dm['error']}[/]")
+    else:
+        card = dm["card"]
+        out.print(f"{'default model':>24}: {dm['name']}  sha256 {dm['sha256'][:16]}...")
+        out.print(f"{'':>24}  {dm['path']}")
+        if card:
+            tr = card.get("training", {})
+            out.print(f"{'':>24}  input {card.get('input_size')} px, trained {tr.get('epochs')} epochs on "
+                      f"{tr.get('train_sequences')} sequences ({tr.get('data', 'see card')})")
+    dev = record["device"]
+    out.print(f"{'device (auto)':>24}: {dev['auto']}  ({dev['torch_threads']} CPU threads, {dev['cuda_devices']} CUDA)")  # type: ignore[index]
+
+
+def register(app: typer.Typer) -> None:
+    app.command("info")(info)

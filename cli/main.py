@@ -1,0 +1,70 @@
+"""Entry point: ``colonlight <command>``; one module per command, registered here.
+
+Exit codes: 0 all good, 1 some inputs failed (or an expected error), 2 usage error. Expected failures print one
+line; ``--debug`` (or ``COLONLIGHT_DEBUG=1``) shows tracebacks.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import typer
+
+from colonlight import __version__
+from colonlight.errors import ColonlightError
+
+from . import demo, enhance, info, synth, train
+from .display import error_line
+
+app = typer.Typer(
+    name="colonlight",
+    help="Consistent lighting for colonoscopy video (Zhang et al., IPMI 2021): enhance, train, synthesise, serve.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"colonlight {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main(
+    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version."),
+) -> None:
+    """colonlight: consistent lighting for colonoscopy video."""
+
+
+for module in (enhance, demo, synth, train, info):
+    module.register(app)
+
+try:  # the service's command, when its module is present
+    from . import serve
+
+    serve.register(app)
+except ImportError:  # pragma: no cover
+    pass
+
+
+def run() -> None:
+    """Console-script entry: run the app, turning expected errors into one line and exit code 1."""
+    debug = os.environ.get("COLONLIGHT_DEBUG", "") not in ("", "0") or "--debug" in sys.argv
+    try:
+        app()
+    except ColonlightError as exc:
+        if debug:
+            raise
+        error_line(str(exc))
+        sys.exit(1)
+    except KeyboardInterrupt:
+        error_line("interrupted; rerun the same command to resume")
+        sys.exit(130)
+
+
+if __name__ == "__main__":
+    run()

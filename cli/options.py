@@ -1,0 +1,43 @@
+"""Options shared by several commands (same names, help and environment variables everywhere)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+Device = typer.Option("auto", "--device", envvar="COLONLIGHT_DEVICE", help="auto | cpu | cuda | cuda:N.")
+Method = typer.Option("rnn", "--method", "-m", envvar="COLONLIGHT_METHOD", help="Enhancement method (see `colonlight info`).")
+Weights: Optional[Path] = typer.Option(
+    None, "--weights", "-w", envvar="COLONLIGHT_WEIGHTS",
+    help="Checkpoint: ours (.safetensors with its .json card) or the authors' .pth. Default: the shipped model.",
+)
+ModelSize = typer.Option(
+    None, "--model-size", envvar="COLONLIGHT_MODEL_SIZE",
+    help="Network input size in pixels, or 'full' for full-resolution input (the release's way). Default: 64.",
+)
+Debug = typer.Option(False, "--debug", envvar="COLONLIGHT_DEBUG", help="Show tracebacks of errors.")
+Quiet = typer.Option(False, "--quiet", "-q", envvar="COLONLIGHT_QUIET", help="No live display: one line per clip, for logs.")
+
+
+def method_options(
+    method: str, weights: Path | None, model_size: str | None, device: str, gamma: float | None = None
+) -> dict[str, object]:
+    """The keyword options of ``method`` from the CLI's flags (flags a method does not take are refused)."""
+    opts: dict[str, object] = {}
+    if method in ("rnn", "zerodce", "zerodce++"):
+        opts["device"] = device
+        if weights is not None:
+            opts["weights"] = str(weights)
+    elif weights is not None:
+        raise typer.BadParameter(f"--weights does not apply to method {method!r}")
+    if method == "rnn" and model_size is not None:
+        opts["model_size"] = model_size
+    elif model_size is not None:
+        raise typer.BadParameter(f"--model-size does not apply to method {method!r}")
+    if method == "gamma" and gamma is not None:
+        opts["gamma"] = gamma
+    elif gamma is not None:
+        raise typer.BadParameter(f"--gamma applies only to --method gamma")
+    return opts

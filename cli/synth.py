@@ -1,0 +1,38 @@
+"""``colonlight synth``: synthetic colonoscopy clips with ground truth (poses, depth, clean frames, lighting)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from colonlight.synth import make_dataset
+
+from .display import console
+
+
+def synth(
+    output: Path = typer.Argument(..., help="Folder to write clips into (one sub-folder per clip)."),
+    clips: int = typer.Option(1, "--clips", "-n", min=1, help="Number of clips."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the first clip; clip i uses seed + i."),
+    frames: int = typer.Option(90, "--frames", min=2, help="Frames per clip."),
+    width: int = typer.Option(384, "--width", min=32),
+    height: int = typer.Option(288, "--height", min=32),
+    fps: float = typer.Option(18.0, "--fps", min=1.0, help="Frame rate of the clip (and its timestamps)."),
+    split: str = typer.Option("train", "--split", help="Parameter family: train | heldout (ranges never used in training)."),
+    video: bool = typer.Option(True, "--video/--no-video", help="Write clip.mp4 (H.264)."),
+    workers: int = typer.Option(2, "--workers", "-j", min=1),
+) -> None:
+    """Render synthetic colonoscopy clips: frames/, clean/, depth/, poses.txt (TUM), intrinsics.json, lighting.json."""
+    if split not in ("train", "heldout"):
+        raise typer.BadParameter("choose train or heldout", param_hint="--split")
+    paths = make_dataset(
+        output, clips, seed=seed, split=split, width=width, height=height, n_frames=frames, fps=fps,
+        workers=workers, video=video,
+    )
+    for p in paths:
+        console.print(f"wrote {p}")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("synth")(synth)

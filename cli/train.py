@@ -1,0 +1,98 @@
+"""``colonlight train``: the paper's unsupervised objective on your clips, or on synthetic ones."""
+
+from __future__ import annotations
+
+import shlex
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from colonlight.batch import discover_clips
+from colonlight.train import EpochRecord, TrainConfig, train
+
+from .display import console
+
+
+def _synthetic_clips(run_dir: Path, n: int, seed: int, frames: int, split: str) -> list[Path]:
+    from colonlight.synth import make_dataset
+
+    dirs = make_dataset(run_dir / "data" / split, n, seed=seed, split="train", width=256, height=256,
+                        n_frames=frames, fps=18.0, workers=2, video=False)
+    return [d / "frames" for d in dirs]
+
+
+def _clips(paths: list[Path]) -> list[Path]:
+    return [j.source for j in discover_clips(paths, Path("."))]
+
+
+def train_cmd(
+    data: Optional[list[Path]] = typer.Argument(None, help="Clips: videos and/or frame folders (walked recursively)."),
+    output: Path = typer.Option(Path("colonlight-train"), "--output", "-o", help="Run folder: checkpoints/, the weights and card."),
+    val: Optional[list[Path]] = typer.Option(None, "--val", help="Validation clip(s); default: the last clip of DATA."),
+    synthetic: int = typer.Option(0, "--synthetic", min=0, help="Also render this many synthetic training clips."),
+    synthetic_seed: int = typer.Option(1000, "--synthetic-seed", help="Seed of the first synthetic clip."),
+    synthetic_frames: int = typer.Option(100, "--synthetic-frames", min=12),
+    synthetic_val: int = typer.Option(2, "--synthetic-val", min=0, help="Synthetic validation clips (seeds after the training ones)."),
+    method: str = typer.Option("rnn", "--method", help="rnn (the paper's model) | zerodce | zerodce++ (baselines)."),
+    size: int = typer.Option(64, "--size", min=16, help="Training input size (match the inference default)."),
+    epochs: int = typer.Option(10, "--epochs", min=1),
+    batch: int = typer.Option(4, "--batch", min=1),
+    lr: float = typer.Option(5e-5, "--lr"),
+    seq_len: int = typer.Option(10, "--seq-len", min=3),
+    stride: int = typer.Option(5, "--stride", min=1),
+    seed: int = typer.Option(0, "--seed"),
+    init: Optional[str] = typer.Option(None, "--init", help="Start from a checkpoint (ours or the authors' .pth), or 'default'."),
+    name: str = typer.Option("colonlight-rnn", "--name", help="Name of the weights file and card."),
+    resume: bool = typer.Option(True, "--resume/--no-resume", help="Continue from the last epoch saved in OUTPUT."),
+    fps: float = typer.Option(18.0, "--fps", help="Extraction rate for video clips (0: every frame)."),
+) -> None:
+    """Train a model; writes OUTPUT/NAME.safetensors and its model card OUTPUT/NAME.json."""
+    command = "colonlight " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    train_clips = _clips(list(data or []))
+    val_clips = _clips(list(val or []))
+    extra: dict[str, object] = {"command": command}
+    if synthetic:
+        train_clips += _synthetic_clips(output, synthetic, synthetic_seed, synthetic_frames, "train")
+        extra["data"] = f"synthetic: {synthetic} clips x {synthetic_frames} frames, seeds {synthetic_seed}..{synthetic_seed + synthetic - 1}, split train"
+        if synthetic_val and not val_clips:
+            val_clips = _synthetic_clips(output, synthetic_val, synthetic_seed + synthetic, synthetic_frames, "val")
+            extra["validation_data"] = f"synthetic: {synthetic_val} clips, seeds {synthetic_seed + synthetic}..{synthetic_seed + synthetic + synthetic_val - 1}"
+    if not train_clips:
+        raise typer.BadParameter("give clips to train on, or --synthetic N")
+    if not val_clips and len(train_clips) > 1:
+        val_clips = [train_clips.pop()]
+    if method in ("zerodce", "zerodce++"):
+        from colonlight.methods.zerodce import train_zerodce_on_clips
+
+        path = train_zerodce_on_clips(train_clips, method, output, epochs=epochs, size=size, seed=seed, card_extra=extra)
+        console.print(f"weights: {path}")
+        return
+    if method != "rnn":
+        raise typer.BadParameter("choose rnn, zerodce or zerodce++", param_hint="--method")
+    if init == "default":
+        from colonlight.checkpoint import DEFAULT_WEIGHTS
+
+        init = str(DEFAULT_WEIGHTS)
+    cfg = TrainConfig(size=size, seq_len=seq_len, stride=stride, batch=batch, lr=lr, epochs=epochs, seed=seed,
+                      fps=fps or None, init=init)
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("loss {task.fields[loss]:.4f}"),
+                  TimeRemainingColumn(), console=console) as progress:
+        task = progress.add_task("epoch", total=None, loss=float("nan"))
+
+        def on_step(epoch: int, step: int, steps: int, loss: float) -> None:
+            progress.update(task, description=f"epoch {epoch + 1}/{epochs}", total=steps, completed=step, loss=loss)
+
+        def on_epoch(rec: EpochRecord) -> None:
+            val_txt = f"{rec.val_loss:.4f}" if rec.val_loss is not None else "-"
+            progress.console.print(f"epoch {rec.epoch}: train loss {rec.train_loss:.4f}, val loss {val_txt}, {rec.seconds:.0f} s")
+
+        result = train(train_clips, val_clips, output, cfg, name=name, card_extra=extra, resume=resume,
+                       on_step=on_step, on_epoch=on_epoch)
+    console.print(f"weights: {result.weights}\ncard:    {result.weights.with_suffix('.json')}")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("train")(train_cmd)

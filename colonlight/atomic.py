@@ -1,0 +1,64 @@
+"""Atomic file writes: a reader (or a resumed run) never sees a half-written file.
+
+Every output is written to a temporary name in the destination folder and renamed into place; a rename within one
+filesystem is atomic, so after a crash or ``kill -9`` a file either exists complete or not at all.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+TMP_MARK = ".colonlight-tmp"
+
+
+@contextmanager
+def atomic_path(dest: Path, suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path beside ``dest``; rename it onto ``dest`` if the block succeeds, else delete it.
+
+    ``suffix`` (default: that of ``dest``) is kept so that writers choosing a format by extension still work.
+    """
+    dest = Path(dest)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(
+        prefix=f".{dest.name}.", suffix=TMP_MARK + (dest.suffix if suffix is None else suffix), dir=dest.parent
+    )
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        yield tmp
+        os.replace(tmp, dest)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_bytes_atomic(dest: Path, data: bytes) -> None:
+    """Write ``data`` to ``dest`` atomically, flushed to disk before the rename."""
+    with atomic_path(dest) as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+
+
+def write_json_atomic(dest: Path, obj: Any) -> None:
+    """Write ``obj`` as indented UTF-8 JSON to ``dest`` atomically."""
+    write_bytes_atomic(dest, (json.dumps(obj, indent=1, ensure_ascii=False) + "\n").encode("utf-8"))
+
+
+def remove_stale_temporaries(folder: Path) -> int:
+    """Delete temporaries left in ``folder`` (recursively) by an interrupted run; return how many."""
+    count = 0
+    if not folder.is_dir():
+        return 0
+    for p in folder.rglob(f"*{TMP_MARK}*"):
+        if p.is_file():
+            p.unlink(missing_ok=True)
+            count += 1
+    return count

@@ -1,0 +1,138 @@
+"""Loading and saving the gamma network's weights, in two formats, without ever unpickling arbitrary objects.
+
+* Ours: ``NAME.safetensors`` (tensors only) plus ``NAME.json``, a model card (name, version, input size, how it was
+  trained, and the sha256 of the safetensors file, checked on load).
+* The authors' release: a plain PyTorch state dict (``.pth``) with keys ``in_cnv.*``, ``bn.*``, ``RNNcell.conv.*``,
+  ``rnn_cnv.*``, ``out_linear.*``; read with ``torch.load(weights_only=True)``, which refuses anything but tensors
+  and plain containers.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import pickle
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+
+from .atomic import atomic_path, write_json_atomic
+from .errors import CheckpointError
+from .model import GammaNet
+
+WEIGHTS_DIR = Path(__file__).parent / "weights"
+DEFAULT_WEIGHTS = WEIGHTS_DIR / "colonlight-rnn.safetensors"
+
+
+@dataclass(frozen=True)
+class LoadedWeights:
+    """A network ready for inference and what identifies it in every output it makes."""
+
+    net: GammaNet
+    name: str
+    sha256: str
+    path: Path
+    card: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def input_size(self) -> int | None:
+        """The square input size the weights were trained at, when the card says."""
+        size = self.card.get("input_size")
+        return int(size) if size else None
+
+
+def sha256_file(path: Path) -> str:
+    """Hex sha256 of a file's bytes."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def card_path(weights: Path) -> Path:
+    """The model card that sits beside a safetensors file."""
+    return weights.with_suffix(".json")
+
+
+def _state_dict_from_pth(path: Path) -> dict[str, torch.Tensor]:
+    try:
+        obj = torch.load(path, map_location="cpu", weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile, ValueError, OSError) as exc:
+        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise CheckpointError(f"{path}: not a readable PyTorch state dict ({reason[:200]})") from exc
+    if isinstance(obj, dict):
+        for key in ("state_dict", "model", "model_state_dict"):
+            if key in obj and isinstance(obj[key], dict):
+                obj = obj[key]
+                break
+    if not isinstance(obj, dict) or not all(isinstance(v, torch.Tensor) for v in obj.values()):
+        raise CheckpointError(f"{path}: expected a state dict of tensors, found {type(obj).__name__}")
+    return {k.removeprefix("module."): v for k, v in obj.items()}
+
+
+def _net_from_state_dict(state: dict[str, torch.Tensor], path: Path) -> GammaNet:
+    net = GammaNet()
+    expected = set(net.state_dict())
+    missing = sorted(expected - set(state))
+    unexpected = sorted(set(state) - expected)
+    if missing or unexpected:
+        raise CheckpointError(
+            f"{path}: not a colonlight/ColonLight gamma network "
+            f"(missing {missing[:3]}{'...' if len(missing) > 3 else ''}, "
+            f"unexpected {unexpected[:3]}{'...' if len(unexpected) > 3 else ''})"
+        )
+    try:
+        net.load_state_dict(state)
+    except RuntimeError as exc:
+        raise CheckpointError(f"{path}: tensor shapes do not match the network ({str(exc).splitlines()[0]})") from exc
+    return net.eval()
+
+
+def load_weights(path: Path | str | None = None) -> LoadedWeights:
+    """Load our safetensors format (with its card) or the authors' ``.pth`` state dict; ``None`` = the default.
+
+    Raises :class:`CheckpointError` with a one-line reason for a missing, truncated, corrupt or foreign file.
+    """
+    path = Path(path) if path is not None else DEFAULT_WEIGHTS
+    if not path.is_file():
+        hint = " (the default model is missing from this installation)" if path == DEFAULT_WEIGHTS else ""
+        raise CheckpointError(f"{path}: no such checkpoint file{hint}")
+    digest = sha256_file(path)
+    card: dict[str, Any] = {}
+    if path.suffix == ".safetensors":
+        try:
+            state = load_file(str(path))
+        except (SafetensorError, OSError, ValueError) as exc:
+            raise CheckpointError(f"{path}: corrupt or truncated safetensors file ({exc})") from exc
+        cp = card_path(path)
+        if cp.is_file():
+            try:
+                card = json.loads(cp.read_text(encoding="utf-8"))
+            except (OSError, ValueError) as exc:
+                raise CheckpointError(f"{cp}: unreadable model card ({exc})") from exc
+            if card.get("sha256") and card["sha256"] != digest:
+                raise CheckpointError(f"{path}: sha256 {digest[:12]}... does not match its model card {cp.name}")
+        name = str(card.get("name") or path.stem)
+    else:
+        state = _state_dict_from_pth(path)
+        name = path.stem
+    # BatchNorm's step counter is bookkeeping for training only; older saves may lack it.
+    state.setdefault("bn.num_batches_tracked", torch.tensor(0, dtype=torch.long))
+    return LoadedWeights(net=_net_from_state_dict(state, path), name=name, sha256=digest, path=path, card=card)
+
+
+def save_weights(net: GammaNet, path: Path, card: dict[str, Any]) -> dict[str, Any]:
+    """Save ``net`` as safetensors plus its model card (atomically); return the card with its sha256 filled in."""
+    path = Path(path)
+    state = {k: v.detach().cpu().contiguous() for k, v in net.state_dict().items()}
+    with atomic_path(path) as tmp:
+        save_file(state, str(tmp), metadata={"format": "colonlight-gammanet", "name": str(card.get("name", ""))})
+    card = {**card, "sha256": sha256_file(path), "file": path.name}
+    write_json_atomic(card_path(path), card)
+    return card

@@ -1,0 +1,38 @@
+"""Per-pixel tone curves as 256-entry lookup tables.
+
+A global curve maps each 8-bit value to one 8-bit value, so applying it through a table is exact and costs one
+memory lookup per sample (``cv2.LUT``), whatever the frame size. This is how a gamma predicted on a small copy of a
+frame is applied to the full-resolution frame.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+_LEVELS = np.arange(256, dtype=np.float64) / 255.0
+
+
+def gamma_lut(gamma: float) -> np.ndarray:
+    """The table of ``round(255 * (v / 255) ** gamma)`` for v in 0..255, as uint8.
+
+    ``gamma`` must be finite and positive (``gamma < 1`` brightens). Computed in float64 and rounded with
+    ``numpy.rint`` (round half to even, like Python's ``round``), so it is bit-identical to that formula.
+    """
+    if not np.isfinite(gamma) or gamma <= 0:
+        raise ValueError(f"gamma must be finite and > 0, got {gamma!r}")
+    return np.rint(255.0 * _LEVELS**gamma).astype(np.uint8)
+
+
+def apply_lut(frame: np.ndarray, lut: np.ndarray) -> np.ndarray:
+    """Apply a 256-entry uint8 table to every sample of a uint8 image (any channel count)."""
+    if lut.shape != (256,) or lut.dtype != np.uint8:
+        raise ValueError(f"lut must be (256,) uint8, got {lut.shape} {lut.dtype}")
+    if frame.dtype != np.uint8:
+        raise ValueError(f"frame must be uint8, got {frame.dtype}")
+    return cv2.LUT(frame, lut)
+
+
+def apply_gamma(frame: np.ndarray, gamma: float) -> np.ndarray:
+    """``round(255 * (frame / 255) ** gamma)`` for a uint8 frame, through a lookup table."""
+    return apply_lut(frame, gamma_lut(gamma))

@@ -1,0 +1,27 @@
+"""Compute-device choice: ``auto`` prefers a GPU when one is present; an explicit GPU that is absent fails loudly."""
+
+from __future__ import annotations
+
+import torch
+
+from .errors import DeviceError
+
+
+def resolve_device(spec: str = "auto") -> torch.device:
+    """Turn ``auto | cpu | cuda | cuda:N`` into a ``torch.device``; raise :class:`DeviceError` if it is absent."""
+    spec = (spec or "auto").strip().lower()
+    if spec == "auto":
+        return torch.device("cuda:0" if torch.cuda.is_available() else "cpu")
+    if spec == "cpu":
+        return torch.device("cpu")
+    if spec == "cuda" or spec.startswith("cuda:"):
+        index_text = spec.partition(":")[2] or "0"
+        if not index_text.isdigit():
+            raise DeviceError(f"device {spec!r}: expected cuda or cuda:N with N a number")
+        index = int(index_text)
+        if not torch.cuda.is_available():
+            raise DeviceError(f"device {spec!r} requested, but this machine has no CUDA GPU (use --device cpu)")
+        if index >= torch.cuda.device_count():
+            raise DeviceError(f"device {spec!r} requested, but only {torch.cuda.device_count()} CUDA GPU(s) exist")
+        return torch.device(f"cuda:{index}")
+    raise DeviceError(f"unknown device {spec!r}: choose auto, cpu, cuda or cuda:N")

@@ -1,0 +1,70 @@
+"""The one small interface every enhancement method implements.
+
+A :class:`Method` holds what is shared across clips (a loaded network, parameters) and is built once per worker.
+For each clip it hands out a fresh :class:`MethodStream`, which holds the per-clip state (a recurrent state, a
+temporal window) and turns frames, pushed in order, into :class:`FrameResult` s. A stream may hold frames back
+(FFmpeg's deflicker looks ahead), so ``push`` returns zero or more results and ``flush`` returns the rest; results
+always come out in input order, one per input frame.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """One enhanced frame.
+
+    Attributes:
+        frame: ``(H, W, 3)`` uint8 RGB, same size as the input frame.
+        gamma: the exponent applied to the frame (``out = in ** gamma``) when the method has one per frame,
+            else ``None``.
+        info: per-frame facts worth recording (e.g. ``{"seed": True}``, ``{"clamped": True, "a": 0.0}``).
+    """
+
+    frame: np.ndarray
+    gamma: float | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+class MethodStream(ABC):
+    """Per-clip state of a method. Frames go in order; results come out in order."""
+
+    @abstractmethod
+    def push(self, frame: np.ndarray) -> list[FrameResult]:
+        """Feed one ``(H, W, 3)`` uint8 RGB frame; return the results now ready (possibly none)."""
+
+    def flush(self) -> list[FrameResult]:
+        """End of clip: return results still held back."""
+        return []
+
+
+class Method(ABC):
+    """An enhancement method; build once, then call :meth:`stream` for every clip."""
+
+    name: ClassVar[str]
+
+    @abstractmethod
+    def stream(self) -> MethodStream:
+        """A fresh per-clip stream (state reset)."""
+
+    def parameters(self) -> dict[str, Any]:
+        """Parameters that, with :meth:`model_info`, reproduce this method's output (recorded in gammas.json)."""
+        return {}
+
+    def model_info(self) -> dict[str, Any] | None:
+        """``{"name": ..., "sha256": ...}`` of the weights used, or ``None`` for methods without weights."""
+        return None
+
+
+def check_frame(frame: np.ndarray) -> None:
+    """Raise ``ValueError`` unless ``frame`` is ``(H, W, 3)`` uint8."""
+    if not isinstance(frame, np.ndarray) or frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
+        shape = getattr(frame, "shape", None)
+        dtype = getattr(frame, "dtype", type(frame).__name__)
+        raise ValueError(f"expected an (H, W, 3) uint8 RGB frame, got shape {shape} dtype {dtype}")

@@ -1,0 +1,141 @@
+"""``rnn``: the paper's recurrent gamma network, streamed frame by frame.
+
+The network sees a small square copy of each frame (``model_size``; ``None`` feeds the full frame, as the release
+does); it predicts one number, so the gamma it gives is applied to the full-resolution frame through a 256-entry
+lookup table. The first ``seeds`` frames (2, as in the release) only build the recurrent state and are written
+unchanged with gamma 1.0.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+
+from ..checkpoint import LoadedWeights, load_weights
+from ..curves import apply_gamma
+from ..device import resolve_device
+from ..model import State
+from .base import FrameResult, Method, MethodStream, check_frame
+
+#: Network input side in pixels. Chosen by measurement (README, "Choosing the network input size").
+DEFAULT_MODEL_SIZE = 64
+#: The applied gamma is kept inside this range; a value outside it is clamped and the clamp recorded.
+GAMMA_MIN, GAMMA_MAX = 0.125, 4.0
+SEED_FRAMES = 2
+
+
+def clamp_gamma(a: float) -> tuple[float, bool]:
+    """Gamma ``1/a`` kept within ``[GAMMA_MIN, GAMMA_MAX]``; returns ``(gamma, clamped)``.
+
+    A non-finite or non-positive ``a`` (the ReLU output can be exactly 0) means the network gave no usable
+    answer: the frame is then left unchanged (gamma 1.0) rather than pushed to an extreme, and flagged.
+    """
+    if not math.isfinite(a) or a <= 0.0:
+        return 1.0, True
+    gamma = 1.0 / a
+    if gamma < GAMMA_MIN:
+        return GAMMA_MIN, True
+    if gamma > GAMMA_MAX:
+        return GAMMA_MAX, True
+    return gamma, False
+
+
+def network_input(frame: np.ndarray, size: int | None) -> np.ndarray:
+    """The copy of ``frame`` the network sees: ``size x size`` (area-averaged) or the frame itself."""
+    if size is None or frame.shape[:2] == (size, size):
+        return frame
+    return cv2.resize(frame, (size, size), interpolation=cv2.INTER_AREA)
+
+
+def to_tensor(frame: np.ndarray, device: torch.device) -> torch.Tensor:
+    """``(H, W, 3)`` uint8 -> ``(1, 3, H, W)`` float32 in [0, 1] on ``device``."""
+    return torch.from_numpy(np.ascontiguousarray(frame)).to(device).permute(2, 0, 1)[None].float().div_(255.0)
+
+
+class RecurrentGammaStream(MethodStream):
+    """Per-clip state of :class:`RecurrentGammaMethod`: the ConvLSTM state and the frame count."""
+
+    def __init__(self, method: RecurrentGammaMethod) -> None:
+        self._method = method
+        self._state: State | None = None
+        self._index = 0
+
+    def predict_a(self, frame: np.ndarray) -> float:
+        """Advance the recurrent state by one frame and return the network's raw ``a``."""
+        m = self._method
+        x = to_tensor(network_input(frame, m.model_size), m.device)
+        with torch.inference_mode():
+            a, self._state = m.weights.net.step(x, self._state)
+        return float(a.item())
+
+    def push(self, frame: np.ndarray) -> list[FrameResult]:
+        check_frame(frame)
+        a = self.predict_a(frame)
+        index, self._index = self._index, self._index + 1
+        if index < self._method.seeds:
+            return [FrameResult(frame=frame, gamma=1.0, info={"a": a, "seed": True})]
+        gamma, clamped = clamp_gamma(a)
+        info: dict[str, Any] = {"a": a}
+        if clamped:
+            info["clamped"] = True
+        return [FrameResult(frame=apply_gamma(frame, gamma), gamma=gamma, info=info)]
+
+
+class RecurrentGammaMethod(Method):
+    """The recurrent gamma model with loaded weights (ours by default, or the authors' ``.pth``).
+
+    Args:
+        weights: a ``.safetensors`` (ours) or ``.pth`` (the authors') file; ``None`` = the shipped default.
+        model_size: the network's square input side; ``None`` or ``"full"`` feeds the full-resolution frame.
+        device: ``auto | cpu | cuda | cuda:N``.
+        seeds: leading frames passed through unchanged while the state builds (2 in the release).
+    """
+
+    name = "rnn"
+
+    def __init__(
+        self,
+        weights: str | Path | LoadedWeights | None = None,
+        model_size: int | str | None = DEFAULT_MODEL_SIZE,
+        device: str = "auto",
+        seeds: int = SEED_FRAMES,
+    ) -> None:
+        self.device = resolve_device(device)
+        self.weights = weights if isinstance(weights, LoadedWeights) else load_weights(weights)
+        self.weights.net.to(self.device).eval()
+        self.model_size = parse_model_size(model_size)
+        if seeds < 0:
+            raise ValueError(f"seeds must be >= 0, got {seeds}")
+        self.seeds = seeds
+
+    def stream(self) -> RecurrentGammaStream:
+        return RecurrentGammaStream(self)
+
+    def parameters(self) -> dict[str, Any]:
+        return {
+            "model_size": self.model_size if self.model_size is not None else "full",
+            "seeds": self.seeds,
+            "gamma_range": [GAMMA_MIN, GAMMA_MAX],
+            "device": str(self.device),
+        }
+
+    def model_info(self) -> dict[str, Any]:
+        return {"name": self.weights.name, "sha256": self.weights.sha256}
+
+
+def parse_model_size(value: int | str | None) -> int | None:
+    """``"full"``/``None`` -> ``None``; a positive int (or its text) -> that int; anything else -> ValueError."""
+    if value is None or (isinstance(value, str) and value.strip().lower() == "full"):
+        return None
+    try:
+        size = int(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"model size must be a positive integer or 'full', got {value!r}") from None
+    if size < 8:
+        raise ValueError(f"model size must be at least 8 pixels, got {size}")
+    return size

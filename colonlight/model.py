@@ -1,0 +1,105 @@
+"""The recurrent gamma network of Zhang et al. (IPMI 2021), layer for layer as in the authors' release.
+
+Per frame: conv3x3(3->32) + BatchNorm + ReLU -> ConvLSTM cell (hidden 32, forget-gate bias +1) -> conv3x3(32->32)
++ ReLU -> global average pool -> linear(32->1) + ReLU = ``a``. The frame is corrected as ``I ** (1/a)``, so the
+gamma applied is ``1/a``. Attribute names match the release's state-dict keys (``in_cnv``, ``bn``,
+``RNNcell.conv``, ``rnn_cnv``, ``out_linear``) so its checkpoint loads as it is.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+HIDDEN = 32
+BN_MOMENTUM = 0.01
+FORGET_BIAS = 1.0
+
+State = tuple[Tensor, Tensor]
+
+
+class ConvLSTMCell(nn.Module):
+    """A convolutional LSTM cell: one 3x3 conv over ``[x, h]`` gives the gates i, f, o, g (in that order)."""
+
+    def __init__(self, in_channels: int = HIDDEN, hidden: int = HIDDEN, kernel: int = 3) -> None:
+        super().__init__()
+        self.hidden = hidden
+        self.conv = nn.Conv2d(in_channels + hidden, 4 * hidden, kernel, padding=kernel // 2)
+
+    def forward(self, x: Tensor, state: State | None) -> State:
+        """One step. ``x``: ``(B, C, H, W)``; ``state``: ``(h, c)`` or ``None`` (zeros) -> new ``(h, c)``."""
+        if state is None:
+            zeros = x.new_zeros(x.shape[0], self.hidden, x.shape[2], x.shape[3])
+            state = (zeros, zeros)
+        h, c = state
+        i, f, o, g = torch.split(self.conv(torch.cat([x, h], dim=1)), self.hidden, dim=1)
+        c = torch.sigmoid(f + FORGET_BIAS) * c + torch.sigmoid(i) * torch.tanh(g)
+        h = torch.sigmoid(o) * torch.tanh(c)
+        return h, c
+
+
+class GammaNet(nn.Module):
+    """Predicts one ``a`` per frame (gamma = 1/a) from the frame and a recurrent state; 84,097 parameters.
+
+    Example::
+
+        net = GammaNet().eval()
+        state = None
+        for frame in clip:                   # frame: (1, 3, H, W) float in [0, 1]
+            a, state = net.step(frame, state)
+    """
+
+    def __init__(self, hidden: int = HIDDEN) -> None:
+        super().__init__()
+        self.in_cnv = nn.Conv2d(3, hidden, 3, padding=1)
+        self.bn = nn.BatchNorm2d(hidden, momentum=BN_MOMENTUM)
+        self.RNNcell = ConvLSTMCell(hidden, hidden, 3)  # noqa: N815 - the release's key name
+        self.rnn_cnv = nn.Conv2d(hidden, hidden, 3, padding=1)
+        self.out_linear = nn.Linear(hidden, 1)
+        self.reset_parameters()
+
+    def reset_parameters(self) -> None:
+        """The release's initialisation: Xavier-normal convs, BatchNorm weight ~ N(1, 0.02), bias 0."""
+        for m in self.modules():
+            if isinstance(m, nn.Conv2d):
+                nn.init.xavier_normal_(m.weight)
+                if m.bias is not None:
+                    nn.init.zeros_(m.bias)
+            elif isinstance(m, nn.BatchNorm2d):
+                nn.init.normal_(m.weight, 1.0, 0.02)
+                nn.init.zeros_(m.bias)
+
+    def step(self, frame: Tensor, state: State | None = None) -> tuple[Tensor, State]:
+        """One frame. ``frame``: ``(B, 3, H, W)`` in [0, 1] -> ``a``: ``(B,)`` and the new state."""
+        x = torch.relu(self.bn(self.in_cnv(frame)))
+        state = self.RNNcell(x, state)
+        x = torch.relu(self.rnn_cnv(state[0]))
+        a = torch.relu(self.out_linear(x.mean(dim=(2, 3))))
+        return a[:, 0], state
+
+    def forward(self, frames: Tensor) -> Tensor:
+        """A batch of sequences: ``(B, T, 3, H, W)`` in [0, 1] -> ``a``: ``(B, T)``, state from zero."""
+        if frames.ndim != 5 or frames.shape[2] != 3:
+            raise ValueError(f"expected (B, T, 3, H, W), got {tuple(frames.shape)}")
+        state: State | None = None
+        out = []
+        for t in range(frames.shape[1]):
+            a, state = self.step(frames[:, t], state)
+            out.append(a)
+        return torch.stack(out, dim=1)
+
+
+def correct(frames: Tensor, a: Tensor, eps: float = 1e-6) -> Tensor:
+    """Differentiable correction ``I ** (1/a)`` for training; ``a`` broadcasts over ``(..., 3, H, W)``.
+
+    ``a`` is floored at ``eps`` and the base at ``eps`` so that gradients stay finite.
+    """
+    gamma = 1.0 / a.clamp_min(eps)
+    while gamma.ndim < frames.ndim:
+        gamma = gamma.unsqueeze(-1)
+    return frames.clamp_min(eps) ** gamma
+
+
+def parameter_count(model: nn.Module) -> int:
+    """Number of trainable parameters."""
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)

@@ -1,0 +1,307 @@
+"""One clip, start to finish: frames are decoded once, enhanced once and written once, in a stream.
+
+Layout of a clip's output folder (a stable interface, see the README)::
+
+    frames/000000.png ...   enhanced frames (png or jpg), 6-digit index from 0
+    gammas.json             what was done, with which model and settings, and every frame's gamma (written LAST:
+                            its presence with matching settings means the clip is complete)
+    enhanced.mp4            optional H.264 video at the extraction fps
+
+Decoding runs in a thread ahead of the method, and image encoding in a small thread pool behind it (OpenCV and
+PyAV release the GIL), with bounded queues so memory stays flat whatever the clip length.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import __version__
+from .atomic import remove_stale_temporaries, write_bytes_atomic, write_json_atomic
+from .errors import InputError
+from .frames import encode_image
+from .methods.base import FrameResult, Method
+from .provenance import library_versions
+from .sources import clip_frames
+from .video import DecodedFrame, VideoWriter
+
+GAMMAS_FILE = "gammas.json"
+FRAMES_DIR = "frames"
+VIDEO_FILE = "enhanced.mp4"
+MIN_FRAMES = 2
+_QUEUE_DEPTH = 4
+
+
+@dataclass(frozen=True)
+class ClipOptions:
+    """Output settings of a clip; together with the method they decide every output byte."""
+
+    fps: float | None = 18.0  # None or 0: keep every source frame
+    frames: bool = True
+    video: bool = False
+    format: str = "png"  # png | jpg
+    quality: int = 95  # JPEG quality
+    folder_fps: float = 18.0  # the rate assumed for a folder of frames
+
+    def __post_init__(self) -> None:
+        if self.format not in ("png", "jpg"):
+            raise ValueError(f"format must be png or jpg, got {self.format!r}")
+        if not 1 <= self.quality <= 100:
+            raise ValueError(f"quality must be within 1..100, got {self.quality}")
+        if self.fps is not None and self.fps < 0:
+            raise ValueError(f"fps must be >= 0, got {self.fps}")
+        if not (self.frames or self.video):
+            raise ValueError("nothing to write: enable frames or video")
+
+
+@dataclass(frozen=True)
+class ClipResult:
+    clip: str
+    out_dir: Path
+    frames: int
+    seconds: float
+
+
+def settings_record(method: Method, opts: ClipOptions) -> dict[str, Any]:
+    """The settings that decide a clip's outputs; a complete clip made with other settings is redone."""
+    return {
+        "method": method.name,
+        "model": method.model_info(),
+        "parameters": method.parameters(),
+        "fps": opts.fps or None,
+        "outputs": {"frames": opts.frames, "video": opts.video, "format": opts.format, "quality": opts.quality},
+    }
+
+
+def is_complete(out_dir: Path, method: Method, opts: ClipOptions) -> bool:
+    """True when ``out_dir`` holds a finished clip made with the same settings (so it can be skipped)."""
+    try:
+        record = json.loads((out_dir / GAMMAS_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    if record.get("settings") != json.loads(json.dumps(settings_record(method, opts))):
+        return False
+    if opts.video and not (out_dir / VIDEO_FILE).is_file():
+        return False
+    return True
+
+
+def _prefetch(frames: Iterator[DecodedFrame], stop: threading.Event) -> Iterator[DecodedFrame]:
+    """Decode in a background thread, a few frames ahead."""
+    q: queue.Queue[Any] = queue.Queue(maxsize=_QUEUE_DEPTH)
+    end = object()
+
+    def produce() -> None:
+        try:
+            for f in frames:
+                while not stop.is_set():
+                    try:
+                        q.put(f, timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+            q.put(end)
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer, which re-raises it
+            q.put(exc)
+
+    thread = threading.Thread(target=produce, name="colonlight-decode", daemon=True)
+    thread.start()
+    try:
+        while True:
+            item = q.get()
+            if item is end:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+
+
+class _FrameSink:
+    """Writes enhanced frames as images (thread pool, bounded) and/or to the H.264 writer."""
+
+    def __init__(self, out_dir: Path, opts: ClipOptions, fps: float) -> None:
+        self.opts = opts
+        self.frames_dir = out_dir / FRAMES_DIR
+        self.pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="colonlight-write") if opts.frames else None
+        self.pending: deque[Future[None]] = deque()
+        self.video = VideoWriter(out_dir / VIDEO_FILE, fps=fps) if opts.video else None
+        self.count = 0
+
+    def _write_image(self, index: int, frame: np.ndarray) -> None:
+        data = encode_image(frame, self.opts.format, self.opts.quality)
+        write_bytes_atomic(self.frames_dir / f"{index:06d}.{self.opts.format}", data)
+
+    def write(self, index: int, frame: np.ndarray) -> None:
+        if self.pool is not None:
+            while len(self.pending) >= 2 * _QUEUE_DEPTH:
+                self.pending.popleft().result()
+            self.pending.append(self.pool.submit(self._write_image, index, frame))
+        if self.video is not None:
+            self.video.write(frame)
+        self.count += 1
+
+    def finish(self) -> None:
+        while self.pending:
+            self.pending.popleft().result()
+        if self.pool is not None:
+            self.pool.shutdown()
+        if self.video is not None:
+            self.video.close()
+
+    def abort(self) -> None:
+        for fut in self.pending:
+            fut.cancel()
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+        if self.video is not None:
+            self.video.abort()
+
+
+def _remove_extra_frames(frames_dir: Path, count: int, fmt: str) -> None:
+    """Delete frames a previous, different run left beyond this run's last index or in another format."""
+    if not frames_dir.is_dir():
+        return
+    for p in frames_dir.iterdir():
+        stem, _, suffix = p.name.partition(".")
+        if stem.isdigit() and (int(stem) >= count or suffix != fmt):
+            p.unlink(missing_ok=True)
+
+
+def enhance_clip(
+    source: Path,
+    out_dir: Path,
+    method: Method,
+    opts: ClipOptions = ClipOptions(),
+    *,
+    clip_name: str | None = None,
+    on_frame: Callable[[int], None] | None = None,
+) -> ClipResult:
+    """Enhance one clip (a video file or a folder of frames) into ``out_dir``; ``gammas.json`` is written last.
+
+    Raises :class:`InputError` (one line naming the file and the cause) for unusable input; partial outputs of
+    this clip are then left without a ``gammas.json`` and a rerun redoes the clip.
+    """
+    t0 = time.perf_counter()
+    source, out_dir = Path(source), Path(out_dir)
+    clip_name = clip_name or source.stem
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / GAMMAS_FILE).unlink(missing_ok=True)  # from here on the clip counts as incomplete
+    remove_stale_temporaries(out_dir)
+    fps_out = opts.fps or None
+
+    stop = threading.Event()
+    decoded = _prefetch(clip_frames(source, fps=fps_out, folder_fps=opts.folder_fps), stop)
+    # Hold two frames before writing anything, so that a clip too short to enhance leaves nothing behind.
+    head: list[DecodedFrame] = []
+    for f in decoded:
+        head.append(f)
+        if len(head) >= MIN_FRAMES:
+            break
+    if len(head) < MIN_FRAMES:
+        stop.set()
+        raise InputError(f"{source}: only {len(head)} frame(s); at least {MIN_FRAMES} are needed")
+    first_size = head[0].image.shape[:2]
+    video_fps = fps_out or _source_rate(head)
+    sink = _FrameSink(out_dir, opts, video_fps)
+    stream = method.stream()
+    waiting: deque[DecodedFrame] = deque()  # decoded frames whose result the method still holds back
+    records: list[dict[str, Any]] = []
+
+    def emit(results: list[FrameResult]) -> None:
+        for res in results:
+            meta = waiting.popleft()
+            sink.write(meta.index, res.frame)
+            rec: dict[str, Any] = {
+                "index": meta.index,
+                "time_s": round(meta.time_s, 6),
+                "source_time_s": round(meta.source_time_s, 6),
+                "gamma": res.gamma,
+            }
+            rec.update(res.info)
+            records.append(rec)
+            if on_frame:
+                on_frame(len(records))
+
+    def chain() -> Iterator[DecodedFrame]:
+        yield from head
+        yield from decoded
+
+    try:
+        for f in chain():
+            if f.image.shape[:2] != first_size:
+                raise InputError(
+                    f"{source}: frame {f.index} is {f.image.shape[1]}x{f.image.shape[0]}, "
+                    f"the clip started at {first_size[1]}x{first_size[0]}"
+                )
+            waiting.append(f)
+            emit(stream.push(f.image))
+        emit(stream.flush())
+        sink.finish()
+    except BaseException:
+        stop.set()
+        sink.abort()
+        raise
+    if opts.frames:
+        _remove_extra_frames(out_dir / FRAMES_DIR, len(records), opts.format)
+    elif (out_dir / FRAMES_DIR).is_dir():
+        _remove_extra_frames(out_dir / FRAMES_DIR, 0, opts.format)
+    if not opts.video:
+        (out_dir / VIDEO_FILE).unlink(missing_ok=True)
+
+    settings = settings_record(method, opts)
+    gammas = {
+        "clip": clip_name,
+        "source": str(source),
+        "fps": fps_out,
+        "method": method.name,
+        "model": method.model_info(),
+        "parameters": method.parameters(),
+        "colonlight_version": __version__,
+        "versions": library_versions(),
+        "settings": settings,
+        "frame_count": len(records),
+        "frames": records,
+    }
+    write_json_atomic(out_dir / GAMMAS_FILE, gammas)
+    return ClipResult(clip=clip_name, out_dir=out_dir, frames=len(records), seconds=time.perf_counter() - t0)
+
+
+def _source_rate(head: list[DecodedFrame]) -> float:
+    """The rate of a clip kept at its own frame rate, from its first two timestamps (fallback 18)."""
+    dt = head[1].source_time_s - head[0].source_time_s
+    return 1.0 / dt if dt > 0 else 18.0
+
+
+def iter_enhanced(
+    frames: Iterator[np.ndarray], method: Method
+) -> Iterator[FrameResult]:
+    """Library convenience: enhance an iterable of RGB uint8 frames in order, yielding results as they are ready."""
+    stream = method.stream()
+    for frame in frames:
+        yield from stream.push(frame)
+    yield from stream.flush()
+
+
+__all__ = [
+    "ClipOptions",
+    "ClipResult",
+    "enhance_clip",
+    "is_complete",
+    "iter_enhanced",
+    "settings_record",
+]

@@ -1,0 +1,256 @@
+"""Unsupervised training of the gamma network with the paper's objective (no ground truth needed).
+
+Clips are cut into ``seq_len``-frame sequences with stride ``stride`` (10 and 5 in the paper), frames resized to
+``size x size``. In each sequence frames 0 and 1 are seeds. Every target frame t >= 2, corrected as ``I ** (1/a)``,
+is compared with four references: the corrected frames t-1 and t-2 (a seed's corrected frame is the seed itself)
+and the raw seeds 0 and 1. The loss of a target is the mean over its references of the masked mean of
+``1 - SSIM``; pixels whose input intensity (mean over RGB) is above 0.7 (specular highlights) are left out.
+Adam, learning rate 5e-5, batch 4, 10 epochs by default. SSIM is kornia's (Gaussian 11x11 window, sigma 1.5).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import platform
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+from kornia.metrics import ssim as kornia_ssim
+from safetensors.torch import load_file, save_file
+
+from .atomic import atomic_path, write_json_atomic
+from .checkpoint import load_weights, save_weights
+from .errors import InputError
+from .model import GammaNet, correct, parameter_count
+from .sources import clip_frames
+
+SPECULAR_THRESHOLD = 0.7
+SEEDS = 2
+
+
+@dataclass
+class TrainConfig:
+    """Everything that determines a training run (recorded in the model card)."""
+
+    size: int = 64
+    seq_len: int = 10
+    stride: int = 5
+    batch: int = 4
+    lr: float = 5e-5
+    epochs: int = 10
+    seed: int = 0
+    fps: float | None = 18.0
+    ssim_window: int = 11
+    init: str | None = None  # a checkpoint to start from (fine-tuning), else fresh Xavier init
+
+
+@dataclass
+class EpochRecord:
+    epoch: int
+    train_loss: float
+    val_loss: float | None
+    seconds: float
+
+
+@dataclass
+class TrainResult:
+    weights: Path
+    card: dict[str, Any]
+    history: list[EpochRecord] = field(default_factory=list)
+
+
+def load_clip_array(path: Path, size: int, fps: float | None) -> np.ndarray:
+    """All frames of one clip as ``(T, 3, size, size)`` uint8 (training data is small once resized)."""
+    frames = [
+        cv2.resize(f.image, (size, size), interpolation=cv2.INTER_AREA).transpose(2, 0, 1)
+        for f in clip_frames(path, fps=fps)
+    ]
+    if not frames:
+        raise InputError(f"{path}: no frames")
+    return np.stack(frames)
+
+
+def window_starts(n_frames: int, seq_len: int, stride: int) -> list[int]:
+    """Start indices of the ``seq_len``-frame windows with the given stride (clips shorter than one give none)."""
+    return list(range(0, n_frames - seq_len + 1, stride))
+
+
+class SequenceSet:
+    """The ``seq_len``-frame windows of a set of clips, held once per clip (windows overlap, frames are shared)."""
+
+    def __init__(self, clips: Sequence[np.ndarray], seq_len: int, stride: int) -> None:
+        self.clips = [torch.from_numpy(c) for c in clips]
+        self.seq_len = seq_len
+        self.index = [(ci, s) for ci, c in enumerate(clips) for s in window_starts(len(c), seq_len, stride)]
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def batch(self, ids: Sequence[int]) -> torch.Tensor:
+        """``(B, seq_len, 3, H, W)`` float in [0, 1]."""
+        seqs = [self.clips[ci][s : s + self.seq_len] for ci, s in (self.index[i] for i in ids)]
+        return torch.stack(seqs).float().div_(255.0)
+
+
+def sequence_loss(frames: torch.Tensor, a: torch.Tensor, window: int = 11) -> torch.Tensor:
+    """The paper's loss for a batch of sequences. ``frames``: ``(B, T, 3, H, W)``; ``a``: ``(B, T)``."""
+    b, t = frames.shape[:2]
+    if t <= SEEDS:
+        raise ValueError(f"sequences need more than {SEEDS} frames, got {t}")
+    corrected = correct(frames[:, SEEDS:], a[:, SEEDS:])
+    out = torch.cat([frames[:, :SEEDS], corrected], dim=1)  # seeds are written unchanged
+    losses = []
+    for k in range(SEEDS, t):
+        target = out[:, k]
+        keep = (frames[:, k].mean(dim=1, keepdim=True) <= SPECULAR_THRESHOLD).float()
+        denom = keep.sum(dim=(1, 2, 3)).clamp_min(1.0) * 3
+        ref_losses = []
+        for ref in (out[:, k - 1], out[:, k - 2], frames[:, 0], frames[:, 1]):
+            dissim = 1.0 - kornia_ssim(ref, target, window, max_val=1.0)
+            ref_losses.append((dissim * keep).sum(dim=(1, 2, 3)) / denom)
+        losses.append(torch.stack(ref_losses).mean(dim=0))
+    return torch.stack(losses).mean()
+
+
+def _evaluate(net: GammaNet, data: SequenceSet, cfg: TrainConfig) -> float | None:
+    if len(data) == 0:
+        return None
+    net.eval()
+    total, count = 0.0, 0
+    with torch.no_grad():
+        for start in range(0, len(data), cfg.batch):
+            ids = list(range(start, min(start + cfg.batch, len(data))))
+            x = data.batch(ids)
+            total += float(sequence_loss(x, net(x), cfg.ssim_window)) * len(ids)
+            count += len(ids)
+    net.train()
+    return total / count
+
+
+def _save_state(path: Path, net: GammaNet, opt: torch.optim.Optimizer, epoch: int, history: list[EpochRecord]) -> None:
+    """Resumable training state: tensors in safetensors, the rest in JSON (nothing pickled)."""
+    tensors = {f"model.{k}": v.detach().contiguous() for k, v in net.state_dict().items()}
+    opt_state = opt.state_dict()
+    meta: dict[str, Any] = {"epoch": epoch, "history": [asdict(h) for h in history], "param_groups": opt_state["param_groups"], "steps": {}}
+    for pid, st in opt_state["state"].items():
+        for key, val in st.items():
+            if key == "step":
+                meta["steps"][str(pid)] = float(val)
+            else:
+                tensors[f"opt.{pid}.{key}"] = val.contiguous()
+    with atomic_path(path.with_suffix(".safetensors")) as tmp:
+        save_file(tensors, str(tmp))
+    write_json_atomic(path.with_suffix(".json"), meta)
+
+
+def _load_state(path: Path, net: GammaNet, opt: torch.optim.Optimizer) -> tuple[int, list[EpochRecord]]:
+    tensors = load_file(str(path.with_suffix(".safetensors")))
+    meta = json.loads(path.with_suffix(".json").read_text())
+    net.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
+    state: dict[int, dict[str, Any]] = {}
+    for key, val in tensors.items():
+        if key.startswith("opt."):
+            _, pid, name = key.split(".", 2)
+            state.setdefault(int(pid), {})[name] = val
+    for pid, step in meta["steps"].items():
+        state.setdefault(int(pid), {})["step"] = torch.tensor(step)
+    opt.load_state_dict({"state": state, "param_groups": meta["param_groups"]})
+    return int(meta["epoch"]), [EpochRecord(**h) for h in meta["history"]]
+
+
+def latest_state(run_dir: Path) -> Path | None:
+    """The newest complete epoch state in ``run_dir/checkpoints`` (its JSON is written last)."""
+    states = sorted((run_dir / "checkpoints").glob("epoch_*.json"))
+    return states[-1].with_suffix("") if states else None
+
+
+ProgressFn = Callable[[int, int, int, float], None]
+
+
+def train(
+    train_clips: Sequence[Path],
+    val_clips: Sequence[Path],
+    run_dir: Path,
+    cfg: TrainConfig,
+    *,
+    name: str = "colonlight-rnn",
+    card_extra: dict[str, Any] | None = None,
+    resume: bool = True,
+    on_step: ProgressFn | None = None,
+    on_epoch: Callable[[EpochRecord], None] | None = None,
+) -> TrainResult:
+    """Train on ``train_clips`` (videos or frame folders), validate on ``val_clips``, write ``run_dir/NAME.safetensors``.
+
+    A state is saved after every epoch in ``run_dir/checkpoints``; with ``resume`` a rerun continues from the last
+    one. Runs are deterministic for a given seed, data and thread count. ``on_step(epoch, step, steps, loss)``
+    reports progress.
+    """
+    run_dir = Path(run_dir)
+    torch.manual_seed(cfg.seed)
+    np.random.seed(cfg.seed)
+    train_set = SequenceSet([load_clip_array(p, cfg.size, cfg.fps) for p in train_clips], cfg.seq_len, cfg.stride)
+    val_set = SequenceSet([load_clip_array(p, cfg.size, cfg.fps) for p in val_clips], cfg.seq_len, cfg.stride)
+    if len(train_set) == 0:
+        raise InputError(f"no training sequences: clips need at least {cfg.seq_len} frames")
+
+    net = load_weights(cfg.init).net if cfg.init else GammaNet()
+    net.train()
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    start_epoch, history = 0, []
+    state_path = latest_state(run_dir) if resume else None
+    if state_path is not None:
+        start_epoch, history = _load_state(state_path, net, opt)
+
+    steps = math.ceil(len(train_set) / cfg.batch)
+    for epoch in range(start_epoch, cfg.epochs):
+        t0 = time.perf_counter()
+        order = np.random.default_rng(cfg.seed * 1000 + epoch).permutation(len(train_set))
+        total = 0.0
+        for step in range(steps):
+            ids = order[step * cfg.batch : (step + 1) * cfg.batch].tolist()
+            x = train_set.batch(ids)
+            loss = sequence_loss(x, net(x), cfg.ssim_window)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            total += loss.item() * len(ids)
+            if on_step:
+                on_step(epoch, step + 1, steps, loss.item())
+        record = EpochRecord(epoch + 1, total / len(train_set), _evaluate(net, val_set, cfg), time.perf_counter() - t0)
+        history.append(record)
+        _save_state(run_dir / "checkpoints" / f"epoch_{epoch + 1:03d}", net, opt, epoch + 1, history)
+        if on_epoch:
+            on_epoch(record)
+
+    net.eval()
+    from . import __version__
+
+    card = {
+        "name": name,
+        "version": __version__,
+        "architecture": "GammaNet (Zhang et al. IPMI 2021): conv-BN-ReLU, ConvLSTM(32), conv-ReLU, GAP, linear-ReLU",
+        "parameters": parameter_count(net),
+        "input_size": cfg.size,
+        "training": {
+            **asdict(cfg),
+            "objective": "mean over refs (t-1, t-2 corrected; seeds 0, 1 raw) of masked mean(1 - SSIM); mask: input > 0.7",
+            "train_clips": len(train_clips),
+            "train_sequences": len(train_set),
+            "val_clips": len(val_clips),
+            "val_sequences": len(val_set),
+            "history": [asdict(h) for h in history],
+            "torch": torch.__version__,
+            "python": platform.python_version(),
+            **(card_extra or {}),
+        },
+    }
+    weights_path = run_dir / f"{name}.safetensors"
+    card = save_weights(net, weights_path, card)
+    return TrainResult(weights=weights_path, card=card, history=history)

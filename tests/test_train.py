@@ -1,0 +1,82 @@
+"""Training: the paper's loss, a short run lowers it, per-epoch states resume to the same result."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from colonlight.checkpoint import load_weights
+from colonlight.train import SPECULAR_THRESHOLD, SequenceSet, TrainConfig, sequence_loss, train, window_starts
+
+
+def _flicker_clip(folder: Path, seed: int, n: int = 20, size: int = 48) -> Path:
+    """A textured scene whose brightness and contrast jump from frame to frame."""
+    rng = np.random.default_rng(seed)
+    base = cv2.GaussianBlur(rng.uniform(0.15, 0.6, (size, size, 3)), (0, 0), 2.0)
+    base[..., 0] *= 1.3
+    folder.mkdir(parents=True)
+    for i in range(n):
+        gamma = 1.0 if i < 2 else rng.uniform(0.5, 2.0)
+        frame = np.clip(base**gamma, 0, 1)
+        cv2.imwrite(str(folder / f"{i:04d}.png"), (frame[..., ::-1] * 255).round().astype(np.uint8))
+    return folder
+
+
+def test_windows() -> None:
+    assert window_starts(20, 10, 5) == [0, 5, 10]
+    assert window_starts(9, 10, 5) == []
+    assert window_starts(10, 10, 5) == [0]
+
+
+def test_loss_is_zero_for_identical_frames_and_masks_speculars() -> None:
+    x = torch.full((1, 6, 3, 16, 16), 0.4)
+    assert float(sequence_loss(x, torch.ones(1, 6))) == pytest.approx(0.0, abs=1e-6)
+    y = torch.rand(1, 6, 3, 16, 16) * 0.5
+    y[:, 2:] = 0.95  # targets entirely specular: no pixel counts, whatever they look like
+    assert float(sequence_loss(y, torch.ones(1, 6))) == pytest.approx(0.0, abs=1e-6)
+    y[:, 2:, :, :8] = 0.3  # half the target visible again: now it counts
+    assert float(sequence_loss(y, torch.ones(1, 6))) > 0.05
+    assert SPECULAR_THRESHOLD == 0.7
+
+
+def test_loss_prefers_the_gamma_that_undoes_a_disturbance() -> None:
+    base = torch.rand(1, 1, 3, 32, 32) * 0.6 + 0.05
+    frames = torch.cat([base, base, base**2.0, base**2.0], dim=1)  # targets darkened by gamma 2
+    right = torch.tensor([[1.0, 1.0, 2.0, 2.0]])  # a = 2 -> I ** (1/2) restores them
+    wrong = torch.tensor([[1.0, 1.0, 0.7, 0.7]])
+    assert float(sequence_loss(frames, right)) < 1e-4 < float(sequence_loss(frames, wrong))
+
+
+def test_short_training_lowers_loss_and_resumes_identically(tmp_path: Path) -> None:
+    clips = [_flicker_clip(tmp_path / f"c{i}", seed=i) for i in range(3)]
+    cfg = TrainConfig(size=32, epochs=3, batch=2, lr=2e-3, seed=0)
+    torch.set_num_threads(1)
+    full = train(clips[:2], clips[2:], tmp_path / "full", cfg)
+    losses = [h.train_loss for h in full.history]
+    assert losses[-1] < losses[0]
+    assert full.card["training"]["history"][-1]["val_loss"] is not None
+
+    partial = train(clips[:2], clips[2:], tmp_path / "part", TrainConfig(**{**vars(cfg), "epochs": 1}))
+    assert len(partial.history) == 1
+    resumed = train(clips[:2], clips[2:], tmp_path / "part", cfg)  # continues from epoch 1
+    assert [h.epoch for h in resumed.history] == [1, 2, 3]
+    a, b = load_weights(full.weights).net.state_dict(), load_weights(resumed.weights).net.state_dict()
+    for k in a:
+        assert torch.allclose(a[k].float(), b[k].float(), atol=1e-6), k
+    card = json.loads(full.weights.with_suffix(".json").read_text())
+    assert card["input_size"] == 32 and card["training"]["epochs"] == 3 and len(card["sha256"]) == 64
+
+
+def test_sequence_set_batches(tmp_path: Path) -> None:
+    clip = np.zeros((12, 3, 8, 8), np.uint8)
+    clip[:, 0] = np.arange(12)[:, None, None]
+    ds = SequenceSet([clip], seq_len=10, stride=2)
+    assert len(ds) == 2
+    batch = ds.batch([1])
+    assert batch.shape == (1, 10, 3, 8, 8)
+    assert float(batch[0, 0, 0, 0, 0]) == pytest.approx(2 / 255)
