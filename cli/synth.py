@@ -6,8 +6,6 @@ from pathlib import Path
 
 import typer
 
-from colonlight.synth import make_dataset
-
 from .display import console
 
 
@@ -24,6 +22,8 @@ def synth(
     workers: int = typer.Option(2, "--workers", "-j", min=1),
 ) -> None:
     """Render synthetic colonoscopy clips: frames/, clean/, depth/, poses.txt (TUM), intrinsics.json, lighting.json."""
+    from colonlight.synth import make_dataset
+
     if split not in ("train", "heldout"):
         raise typer.BadParameter("choose train or heldout", param_hint="--split")
     paths = make_dataset(
