@@ -205,7 +205,7 @@ def enhance_clip(
     fps_out = opts.fps or None
 
     stop = threading.Event()
-    decoded = _prefetch(clip_frames(source, fps=fps_out, folder_fps=opts.folder_fps), stop)
+    decoded = _prefetch(clip_frames(source, fps=fps_out, folder_fps=opts.folder_fps, min_frames=MIN_FRAMES), stop)
     # Hold two frames before writing anything, so that a clip too short to enhance leaves nothing behind.
     head: list[DecodedFrame] = []
     for f in decoded:

@@ -27,11 +27,15 @@ def clip_kind(path: Path) -> str:
     raise InputError(f"{path}: not a regular file or folder")
 
 
-def clip_frames(path: Path, fps: float | None = 18.0, folder_fps: float = 18.0) -> Iterator[DecodedFrame]:
+def clip_frames(
+    path: Path, fps: float | None = 18.0, folder_fps: float = 18.0, min_frames: int = 0
+) -> Iterator[DecodedFrame]:
     """Frames of a clip in order: a video resampled to ``fps`` (``None``/0 keeps all), or every image of a folder.
 
     A folder of frames has no timestamps; its frames are taken as already extracted, at ``folder_fps``.
+    ``min_frames`` counts *source* frames (a single still shown for a second would otherwise give 18 outputs)
+    and raises :class:`InputError` before anything is yielded when the clip has fewer.
     """
     if clip_kind(path) == "video":
-        return iter_video_frames(Path(path), fps=fps or None)
-    return iter_image_folder(Path(path), fps=folder_fps)
+        return iter_video_frames(Path(path), fps=fps or None, min_frames=min_frames)
+    return iter_image_folder(Path(path), fps=folder_fps, min_frames=min_frames)

@@ -1,0 +1,160 @@
+"""Frame images: a folder of images as one clip, and reading/writing single frames.
+
+Images go through ``np.fromfile`` + ``cv2.imdecode`` and ``cv2.imencode`` + an atomic write, never
+``cv2.imread``/``imwrite``: those mangle non-ASCII paths on some platforms and write in place, so a crash
+could leave a half-written frame.
+
+A frame folder is any folder holding image files (by suffix) and no video. Hidden files (``.name``, which
+includes our own temporaries) and sub-folders are ignored; other side files (``.json``, ``.txt``, ...) are
+allowed as long as they are not videos. Frames are taken in natural order (``frame2`` before ``frame10``).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .atomic import write_bytes_atomic
+from .errors import InputError
+from .video import DEFAULT_FPS, DecodedFrame, is_video
+
+IMAGE_SUFFIXES: frozenset[str] = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"})
+
+_DIGITS = re.compile(r"([0-9]+)")
+
+
+def natural_key(name: str) -> tuple:
+    """Sort key putting ``frame2`` before ``frame10``: digit runs compare as numbers, text case-insensitively.
+
+    Ties (``f01``/``f1``, ``A``/``a``) fall back to the plain name, so the order is total and stable.
+    """
+    parts = _DIGITS.split(name)
+    key = tuple((1, int(p), "") if i % 2 else (0, 0, p.casefold()) for i, p in enumerate(parts) if p)
+    return (key, name)
+
+
+def _visible_files(folder: Path) -> list[os.DirEntry[str]]:
+    try:
+        with os.scandir(folder) as it:
+            return [e for e in it if not e.name.startswith(".") and e.is_file()]
+    except FileNotFoundError as exc:
+        raise InputError(f"{folder}: folder not found (moved or deleted?)") from exc
+    except NotADirectoryError as exc:
+        raise InputError(f"{folder}: not a folder") from exc
+    except PermissionError as exc:
+        raise InputError(f"{folder}: permission denied") from exc
+    except OSError as exc:
+        raise InputError(f"{folder}: cannot list folder ({exc.strerror or exc})") from exc
+
+
+def _is_image_name(name: str) -> bool:
+    return os.path.splitext(name)[1].lower() in IMAGE_SUFFIXES
+
+
+def list_image_frames(folder: Path) -> list[Path]:
+    """The image files of ``folder`` in natural order; InputError if it has none or cannot be read."""
+    folder = Path(folder)
+    names = sorted((e.name for e in _visible_files(folder) if _is_image_name(e.name)), key=natural_key)
+    if not names:
+        raise InputError(f"{folder}: folder holds no frame images ({', '.join(sorted(IMAGE_SUFFIXES))})")
+    return [folder / n for n in names]
+
+
+def is_image_folder(folder: Path) -> bool:
+    """True if ``folder`` holds image files and no video (side files such as .json are fine). Never raises."""
+    try:
+        folder = Path(folder)
+        if not folder.is_dir():
+            return False
+        entries = _visible_files(folder)
+    except (InputError, OSError):
+        return False
+    if not any(_is_image_name(e.name) for e in entries):
+        return False
+    return not any(is_video(Path(e.path)) for e in entries if not _is_image_name(e.name))
+
+
+def read_image(path: Path) -> np.ndarray:
+    """Read an image as ``(H, W, 3)`` uint8 RGB: grey becomes 3 channels, alpha is dropped, 16-bit is scaled
+    to 8-bit, and JPEG EXIF orientation is applied. InputError (naming the file) if it cannot be read."""
+    path = Path(path)
+    try:
+        data = np.fromfile(str(path), dtype=np.uint8)
+    except FileNotFoundError as exc:
+        raise InputError(f"{path}: file not found (moved or deleted?)") from exc
+    except PermissionError as exc:
+        raise InputError(f"{path}: permission denied") from exc
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    if data.size == 0:
+        raise InputError(f"{path}: empty file (0 bytes)")
+    # IMREAD_COLOR: always 3 channels (grey expanded, alpha dropped), EXIF orientation applied;
+    # IMREAD_ANYDEPTH: keep 16-bit samples so that we scale them ourselves rather than OpenCV truncating them.
+    img = cv2.imdecode(data, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+    if img is None or img.ndim != 3 or img.shape[2] != 3:
+        raise InputError(f"{path}: not a readable image (corrupt or unsupported format)")
+    if img.dtype == np.uint16:
+        img = ((img.astype(np.uint32) * 255 + 32767) // 65535).astype(np.uint8)
+    elif img.dtype in (np.float32, np.float64):
+        img = (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    elif img.dtype != np.uint8:
+        raise InputError(f"{path}: unsupported image sample type {img.dtype}")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def iter_image_folder(
+    folder: Path, fps: float | None = DEFAULT_FPS, *, min_frames: int = 0
+) -> Iterator[DecodedFrame]:
+    """Every image of ``folder`` as a frame, in natural order; ``time_s = index / fps``.
+
+    The images are taken as frames already extracted at ``fps`` (None or 0 means the default 18). Raises
+    InputError naming the file for an unreadable image, a size different from the first frame, or a file that
+    vanished; and, before yielding anything, if the folder has fewer than ``min_frames`` images.
+    """
+    paths = list_image_frames(Path(folder))
+    if len(paths) < min_frames:
+        raise InputError(f"{folder}: too short: {len(paths)} frame image(s), at least {min_frames} needed")
+    rate = float(fps) if fps else DEFAULT_FPS
+    size: tuple[int, ...] | None = None
+    for i, p in enumerate(paths):
+        img = read_image(p)
+        if size is None:
+            size = img.shape
+        elif img.shape != size:
+            raise InputError(
+                f"{p}: frame size {img.shape[1]}x{img.shape[0]} differs from the folder's first frame "
+                f"{size[1]}x{size[0]} ({paths[0].name})"
+            )
+        t = i / rate
+        yield DecodedFrame(image=img, index=i, source_index=i, time_s=t, source_time_s=t)
+
+
+def encode_image(rgb: np.ndarray, fmt: str = "png", quality: int = 95, png_compression: int = 1) -> bytes:
+    """Encode an ``(H, W, 3)`` uint8 RGB frame as PNG or JPEG bytes.
+
+    PNG compression 1 by default (zlib's fastest real level): frames are written at video rate; higher levels
+    buy a few percent smaller files with more CPU time.
+    """
+    fmt = fmt.lower().lstrip(".")
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise ValueError(f"expected an HxWx3 uint8 RGB frame, got {rgb.shape} {rgb.dtype}")
+    bgr = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)
+    if fmt == "png":
+        ok, buf = cv2.imencode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)])
+    elif fmt in ("jpg", "jpeg"):
+        ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    else:
+        raise ValueError(f"unsupported image format {fmt!r} (png or jpg)")
+    if not ok:
+        raise ValueError(f"OpenCV could not encode a {rgb.shape[1]}x{rgb.shape[0]} frame as {fmt}")
+    return buf.tobytes()
+
+
+def write_image_atomic(path: Path, rgb: np.ndarray, fmt: str = "png", quality: int = 95) -> None:
+    """Encode ``rgb`` and write it to ``path`` atomically (a reader never sees a partial image)."""
+    write_bytes_atomic(Path(path), encode_image(rgb, fmt=fmt, quality=quality))

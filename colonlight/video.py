@@ -1,0 +1,665 @@
+"""Video I/O: decoding clips to upright RGB frames, picked as FFmpeg's ``fps`` filter picks them; the writer.
+
+PyAV is used for both directions: it exposes presentation timestamps and rotation metadata, and its wheels
+carry FFmpeg with libx264, so no system FFmpeg and no subprocess pipes are needed.
+
+Why the frame choice copies FFmpeg exactly: users compare our frames with ``ffmpeg -vf fps=18`` extractions
+(older pipelines made them that way), so output frame ``k`` must be the very source frame FFmpeg outputs as
+frame ``k``. :class:`FpsSelector` models ``libavfilter/vf_fps.c``; :func:`iter_video_frames` feeds it the
+timestamps the ``ffmpeg`` tool would feed it (``fftools/ffmpeg_demux.c``, ``ffmpeg_opt.c``, ``ffmpeg_dec.c``).
+
+Container metadata (frame counts, durations) is never trusted: decoding alone decides how many frames exist.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import av
+import cv2
+import numpy as np
+
+from .atomic import atomic_path
+from .errors import InputError
+
+log = logging.getLogger(__name__)
+
+DEFAULT_FPS = 18.0
+
+#: Suffixes that usually name videos. Advisory only (e.g. to report a misnamed file): detection is by content.
+VIDEO_SUFFIXES = frozenset(
+    ".mp4 .m4v .mov .avi .mkv .mpg .mpeg .ts .mts .m2ts .webm .wmv .flv .3gp .ogv .vob .mxf .h264".split()
+)
+
+# Demuxers that open still images, animations or text as a "video" stream: such files are not clips.
+_NOT_VIDEO_FORMATS = frozenset({"image2", "tty", "bin", "xbin", "idf", "adf", "apng", "gif"})
+_AVFMT_NOTIMESTAMPS = 0x0080  # libavformat/avformat.h: the format has no timestamps (raw H.264, ...)
+_AVFMT_TS_DISCONT = 0x0200  # libavformat/avformat.h: timestamps may jump (MPEG-TS, MPEG-PS)
+_MICROSECONDS = Fraction(1, 1_000_000)  # AV_TIME_BASE_Q
+
+
+@dataclass(frozen=True)
+class VideoInfo:
+    """What :func:`probe_video` learnt. Sizes are upright (rotation applied); rates, durations advisory."""
+
+    path: Path
+    width: int
+    height: int
+    rotation: int  # clockwise degrees turned to make the picture upright (FFmpeg's autorotate angle)
+    codec: str
+    avg_fps: float | None
+    time_base: Fraction | None
+    has_audio: bool
+    duration_s: float | None
+
+
+@dataclass(frozen=True)
+class DecodedFrame:
+    """One output frame: ``image`` is ``(H, W, 3)`` uint8 RGB, upright."""
+
+    image: np.ndarray
+    index: int  # output index 0, 1, 2, ...
+    source_index: int  # index of the decoded source frame it came from (repeats when FFmpeg duplicates)
+    time_s: float  # output time: index / fps (the source time when every frame is kept)
+    source_time_s: float  # the source frame's presentation time, relative to the stream's start time
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Frame choice: a model of libavfilter/vf_fps.c with its defaults (round=near, eof_action=round, no start)
+# ------------------------------------------------------------------------------------------------------------
+
+
+def _as_fraction(rate: float | Fraction) -> Fraction:
+    """A frame rate as an exact fraction; floats snap to the nearest ratio with denominator <= 1001 (NTSC)."""
+    r = rate if isinstance(rate, Fraction) else Fraction(rate).limit_denominator(1001)
+    if r <= 0:
+        raise ValueError(f"frame rate must be positive, got {rate}")
+    return r
+
+
+def rescale_near(value: int, from_tb: Fraction, to_tb: Fraction) -> int:
+    """``av_rescale_q_rnd(value, from_tb, to_tb, AV_ROUND_NEAR_INF)``: exact, halves away from zero."""
+    x = Fraction(value) * from_tb / to_tb
+    q, r = divmod(abs(x.numerator), x.denominator)
+    if 2 * r >= x.denominator:
+        q += 1
+    return q if x >= 0 else -q
+
+
+@dataclass(frozen=True)
+class FpsDecision:
+    """Source frame ``source_index`` is output frame ``index``, at output pts ``pts`` (units of 1/fps)."""
+
+    index: int
+    source_index: int
+    pts: int
+
+
+class FpsSelector:
+    """Which source frames FFmpeg's ``fps`` filter outputs, decided from presentation timestamps alone.
+
+    Push every decoded frame's pts (``time_base`` units) in decoding order, then :meth:`close` with the
+    end-of-stream pts; both return the decisions made so far. Like the filter it holds at most two frames,
+    so a caller keeps only the frames listed in :attr:`pending`. The rules, from ``vf_fps.c``:
+
+    * each input pts is rescaled to the output time base 1/fps, to nearest, halves away from zero
+      (``read_frame``: ``av_rescale_q_rnd(in_pts, ..., s->rounding)``, default ``AV_ROUND_NEAR_INF``);
+    * the first output pts is the first frame's rescaled pts (``write_frame``: ``next_pts = frames[0]->pts``);
+    * with two frames buffered the first is dropped if the second's pts <= the next output pts; otherwise the
+      first is output at the next output pts, which advances by one. A frame thus repeats while the next one
+      is still later: a source slower than fps gets duplicates (``write_frame``);
+    * at end of stream the EOF pts (last pts + its duration) is rescaled the same way (``update_eof_pts``,
+      eof_action=round) and the last frame is output until the next output pts reaches it.
+    """
+
+    def __init__(self, fps: float | Fraction, time_base: Fraction) -> None:
+        self.fps = _as_fraction(fps)
+        self.time_base = Fraction(time_base)
+        self._out_tb = 1 / self.fps
+        self._buf: deque[tuple[int, int]] = deque()  # (source_index, pts in 1/fps units)
+        self._next_pts: int | None = None
+        self._pushed = 0
+        self._emitted = 0
+        self._closed = False
+
+    @property
+    def pending(self) -> tuple[int, ...]:
+        """Source indices still held (at most two); no other source frame can be output any more."""
+        return tuple(i for i, _ in self._buf)
+
+    def push(self, pts: int) -> list[FpsDecision]:
+        """Add the next decoded frame; return the output decisions it allows."""
+        if self._closed:
+            raise RuntimeError("FpsSelector.push after close")
+        self._buf.append((self._pushed, rescale_near(pts, self.time_base, self._out_tb)))
+        self._pushed += 1
+        out: list[FpsDecision] = []
+        while len(self._buf) == 2:
+            self._step(None, out)
+        return out
+
+    def close(self, eof_pts: int) -> list[FpsDecision]:
+        """End of stream at ``eof_pts`` (``time_base`` units); return the remaining decisions."""
+        self._closed = True
+        eof = rescale_near(eof_pts, self.time_base, self._out_tb)
+        out: list[FpsDecision] = []
+        while self._buf:
+            self._step(eof, out)
+        return out
+
+    def _step(self, eof: int | None, out: list[FpsDecision]) -> None:
+        if self._next_pts is None:
+            self._next_pts = self._buf[0][1]
+        if (len(self._buf) == 2 and self._buf[1][1] <= self._next_pts) or (
+            eof is not None and eof <= self._next_pts
+        ):
+            self._buf.popleft()
+            return
+        out.append(FpsDecision(self._emitted, self._buf[0][0], self._next_pts))
+        self._emitted += 1
+        self._next_pts += 1
+
+
+class _FfmpegTimestamps:
+    """The pts the ``ffmpeg`` tool hands to its filters, and its end-of-stream pts (stream time base).
+
+    * ``ffmpeg_demux.c`` (``ts_fixup``) shifts each timestamp by ``ts_offset = -start`` (microseconds,
+      rescaled with ``av_rescale_q``). ``start`` is the file's start (``ic->start_time``, earliest stream),
+      except for formats whose timestamps may jump (MPEG-TS/PS), where ``correct_input_start_times``
+      (``ffmpeg_opt.c``) takes the earliest stream in use: the video alone, as in
+      ``ffmpeg -i clip -vf fps=18 frames/%06d.png``.
+    * ``ffmpeg_dec.c`` (``video_frame_process``) takes ``best_effort_timestamp`` (pts, else dts here) and
+      fills a missing one with the previous pts plus the previous frame's estimated duration; formats without
+      timestamps (raw H.264) are timed that way throughout. EOF is signalled at last pts + that estimate
+      (``decoder_thread``); the estimate follows ``video_duration_estimate``.
+    """
+
+    def __init__(self, container: Any, stream: Any) -> None:
+        self.tb = Fraction(stream.time_base)
+        flags = container.format.flags
+        start = container.start_time
+        if start is not None and flags & _AVFMT_TS_DISCONT and stream.start_time is not None:
+            start = rescale_near(stream.start_time, self.tb, _MICROSECONDS)
+        self.offset = -rescale_near(start, _MICROSECONDS, self.tb) if start is not None else 0
+        self.unreliable = bool(flags & _AVFMT_NOTIMESTAMPS)
+        rate = stream.codec_context.framerate
+        self.codec_rate = Fraction(rate) if rate else None
+        guessed = stream.guessed_rate or stream.average_rate
+        self.rate_in = Fraction(guessed) if guessed else None
+        self.last_pts: int | None = None
+        self.last_est = 0
+
+    def frame_pts(self, frame: Any) -> int:
+        """This frame's pts as FFmpeg's filters see it; updates the duration estimate."""
+        pts = None if self.unreliable else (frame.pts if frame.pts is not None else frame.dts)
+        if pts is None:
+            pts = 0 if self.last_pts is None else self.last_pts + self.last_est
+        else:
+            pts += self.offset
+        self.last_est = self._duration(frame, pts)
+        self.last_pts = pts
+        return pts
+
+    def eof_pts(self) -> int:
+        return 0 if self.last_pts is None else self.last_pts + self.last_est
+
+    def _duration(self, frame: Any, pts: int) -> int:
+        dur = frame.duration or 0
+        ts_diff = pts - self.last_pts if self.last_pts is not None else -1
+        if dur > 0 and not self.unreliable and not (dur == 1 and ts_diff > 2):
+            return dur
+        codec_dur = rescale_near(1, 1 / self.codec_rate, self.tb) if self.codec_rate else 0
+        if codec_dur > 0 and self.unreliable:
+            return codec_dur
+        if ts_diff > 0:
+            return ts_diff
+        if dur > 0:
+            return dur
+        if codec_dur > 0:
+            return codec_dur
+        if self.rate_in and (d := rescale_near(1, 1 / self.rate_in, self.tb)) > 0:
+            return d
+        return max(self.last_est, 1)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Rotation: FFmpeg's autorotate (fftools/ffmpeg_filter.c; the same rules as ffplay's configure_video_filters)
+# ------------------------------------------------------------------------------------------------------------
+
+Transform = Callable[[np.ndarray], np.ndarray]
+
+
+def _display_matrix(frame: Any) -> np.ndarray | None:
+    for sd in frame.side_data:
+        if sd.type == av.sidedata.sidedata.Type.DISPLAYMATRIX:
+            return np.frombuffer(bytes(sd), dtype=np.int32)[:9].copy()
+    return None
+
+
+def _rotation_tag(stream: Any) -> int | None:
+    """A legacy ``rotate`` stream tag (clockwise degrees; mkv spells it ``ROTATE``), if any."""
+    for key, value in stream.metadata.items():
+        if key.lower() == "rotate":
+            try:
+                return int(float(value)) % 360
+            except ValueError:
+                return None
+    return None
+
+
+def _round_c(x: float) -> int:
+    """C's ``round()``: halves away from zero (Python's ``round`` goes to even)."""
+    return int(math.copysign(math.floor(abs(x) + 0.5), x))
+
+
+def _contiguous(fn: Transform) -> Transform:
+    return lambda img: np.ascontiguousarray(fn(img))
+
+
+def _orientation(matrix: np.ndarray | None, tag: int | None) -> tuple[int, Transform]:
+    """The clockwise angle and the transform that make a frame upright, as ``ffmpeg`` (autorotate) does.
+
+    Without a display matrix a legacy ``rotate`` tag is honoured. FFmpeg >= 7 ignores a bare tag, but a file
+    carrying one (old muxers, some recorders) means it, and the rule is otherwise the same.
+    """
+    m = None if matrix is None else matrix.astype(np.float64) / 65536.0
+    if m is None:
+        theta = float(tag or 0)
+    else:
+        s0, s1 = math.hypot(m[0], m[3]), math.hypot(m[1], m[4])
+        if s0 == 0 or s1 == 0:
+            return 0, lambda img: img
+        # get_rotation(): theta = -round(av_display_rotation_get(matrix)), then normalised to [0, 360)
+        theta = -_round_c(-math.degrees(math.atan2(m[1] / s1, m[0] / s0)))
+    theta -= 360 * math.floor(theta / 360 + 0.9 / 360)
+    if abs(theta - 90) < 1:  # transpose=clock; cclock_flip (a plain transpose) if matrix[3] > 0
+        if m is not None and m[3] > 0:
+            return 90, _contiguous(lambda img: img.transpose(1, 0, 2))
+        return 90, _contiguous(lambda img: np.rot90(img, -1))
+    if abs(theta - 180) < 1:  # hflip if matrix[0] < 0, vflip if matrix[4] < 0 (both for a tag)
+        hflip = m is None or m[0] < 0
+        vflip = m is None or m[4] < 0
+        return 180, _contiguous(lambda img: img[:: -1 if vflip else 1, :: -1 if hflip else 1])
+    if abs(theta - 270) < 1:  # transpose=cclock; clock_flip (an anti-transpose) if matrix[3] < 0
+        if m is not None and m[3] < 0:
+            return 270, _contiguous(lambda img: img.transpose(1, 0, 2)[::-1, ::-1])
+        return 270, _contiguous(lambda img: np.rot90(img, 1))
+    if abs(theta) > 1:  # rotate=theta*PI/180: clockwise, same canvas, black corners
+
+        def rotate(img: np.ndarray) -> np.ndarray:
+            h, w = img.shape[:2]
+            rot = cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), -theta, 1.0)
+            return cv2.warpAffine(img, rot, (w, h), flags=cv2.INTER_LINEAR, borderValue=(0, 0, 0))
+
+        return round(theta) % 360, rotate
+    if m is not None and m[4] < 0:  # vflip
+        return 0, _contiguous(lambda img: img[::-1])
+    return 0, lambda img: img
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Opening and errors: every expected failure becomes one InputError line naming the file
+# ------------------------------------------------------------------------------------------------------------
+
+
+def _error(path: Path, cause: str) -> InputError:
+    return InputError(" ".join(f"{path}: {cause}".split()))
+
+
+def _cause(exc: BaseException, opening: bool = False) -> str:
+    """A short cause for an OS or FFmpeg error (without the path PyAV appends to its messages)."""
+    if isinstance(exc, FileNotFoundError):
+        return "file not found (moved or deleted?)"
+    if isinstance(exc, PermissionError):
+        return "permission denied"
+    if isinstance(exc, IsADirectoryError):
+        return "is a directory, not a video file"
+    if isinstance(exc, av.error.InvalidDataError):
+        return "not a video: the content is not a recognised video format" if opening else "invalid data"
+    return str(getattr(exc, "strerror", None) or exc or type(exc).__name__)
+
+
+def _check_file(path: Path) -> None:
+    """Cheap checks with clear messages before FFmpeg sees the file."""
+    try:
+        st = path.stat()
+    except OSError as exc:
+        raise _error(path, _cause(exc)) from exc
+    if not os.path.isfile(path):
+        raise _error(path, "is a directory, not a video file" if path.is_dir() else "not a regular file")
+    if st.st_size == 0:
+        raise _error(path, "empty file (0 bytes)")
+
+
+def _looks_like_mp4(path: Path) -> bool:
+    """An ISO media file starts with an ``ftyp`` box; one that FFmpeg cannot open has lost its index."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(8)[4:8] == b"ftyp"
+    except OSError:
+        return False
+
+
+def _open(path: Path) -> tuple[Any, Any]:
+    """Open ``path`` and pick its main video stream; InputError if it is not a video."""
+    _check_file(path)
+    try:
+        container = av.open(str(path), mode="r", metadata_errors="replace")
+    except (av.error.FFmpegError, OSError, UnicodeError, ValueError) as exc:
+        if isinstance(exc, av.error.InvalidDataError) and _looks_like_mp4(path):
+            raise _error(path, "truncated or unfinished MP4/MOV: its index ('moov') is missing") from exc
+        raise _error(path, _cause(exc, opening=True)) from exc
+    try:
+        fmt = container.format.name
+        if fmt in _NOT_VIDEO_FORMATS or fmt.endswith("_pipe"):
+            raise _error(path, f"not a video: the content is a still image, animation or text ({fmt})")
+        attached = av.stream.Disposition.attached_pic  # cover art of an audio file
+        candidates = [s for s in container.streams.video if not s.disposition & attached]
+        if not candidates:
+            raise _error(path, "contains no video stream")
+        best = container.streams.best("video")
+        stream = best if best in candidates else candidates[0]
+        if stream.codec_context is None:
+            raise _error(path, "no decoder for its video codec")
+        stream.codec_context.thread_type = "AUTO"  # frame + slice threads: ~1.5x faster on HD
+    except BaseException:
+        container.close()
+        raise
+    return container, stream
+
+
+def _check_index(path: Path, stream: Any) -> None:
+    """InputError if the container's own sample index points past the end of the file (a cut mp4/mov).
+
+    libavformat reads such a file up to the cut and then reports a plain end of stream, so without this check
+    a truncated recording would silently come out shorter.
+    """
+    try:
+        size = path.stat().st_size
+        end = max((e.pos + e.size for e in stream.index_entries if e.pos >= 0), default=0)
+    except (OSError, AttributeError, ValueError):
+        return
+    if end > size:
+        raise _error(
+            path,
+            f"truncated video: the file ends at byte {size} but its index refers to byte {end} "
+            "(remux it, e.g. ffmpeg -i in.mp4 -c copy fixed.mp4, to keep the readable part)",
+        )
+
+
+def _frames(path: Path, container: Any, stream: Any) -> Iterator[Any]:
+    """Decoded frames of ``stream``; a demux or decode failure becomes InputError naming the frame reached.
+
+    Packets the demuxer flags as corrupt and frames decoded with concealed errors are kept, as ``ffmpeg``
+    keeps them (so that frame choice still matches it), and counted in one warning per clip.
+    """
+    count = damaged = 0
+    try:
+        for packet in container.demux(stream):
+            damaged += bool(packet.is_corrupt)
+            for frame in packet.decode():
+                count += 1
+                damaged += bool(frame.is_corrupt)
+                yield frame
+    except (av.error.FFmpegError, OSError, ValueError) as exc:
+        cause = f"corrupt or truncated video: reading failed after {count} frames ({_cause(exc)})"
+        raise _error(path, cause) from exc
+    finally:
+        if damaged:
+            log.warning("%s: %d damaged packets/frames were decoded with errors concealed", path, damaged)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Public API
+# ------------------------------------------------------------------------------------------------------------
+
+
+def probe_video(path: Path) -> VideoInfo:
+    """Describe the clip at ``path``, decoding its first frame; InputError if it is no decodable video."""
+    path = Path(path)
+    container, stream = _open(path)
+    with container:
+        first = next(iter(_frames(path, container, stream)), None)
+        if first is None:
+            raise _error(path, "no decodable video frames (truncated or corrupt?)")
+        rotation, _ = _orientation(_display_matrix(first), _rotation_tag(stream))
+        width, height = (first.height, first.width) if rotation % 180 == 90 else (first.width, first.height)
+        rate = stream.average_rate or stream.guessed_rate
+        if container.duration is not None:
+            duration: float | None = container.duration / 1_000_000
+        elif stream.duration is not None:
+            duration = float(stream.duration * stream.time_base)
+        else:
+            duration = None
+        return VideoInfo(
+            path=path,
+            width=int(width),
+            height=int(height),
+            rotation=rotation,
+            codec=stream.codec_context.name,
+            avg_fps=float(rate) if rate else None,
+            time_base=Fraction(stream.time_base) if stream.time_base else None,
+            has_audio=len(container.streams.audio) > 0,
+            duration_s=duration,
+        )
+
+
+def is_video(path: Path) -> bool:
+    """True if ``path`` holds a decodable video, judged by content. Decodes a frame; never raises."""
+    try:
+        probe_video(Path(path))
+        return True
+    except Exception:  # noqa: BLE001 - a yes/no sniff: any failure means "not a video we can use"
+        return False
+
+
+def iter_video_frames(
+    path: Path, fps: float | Fraction | None = DEFAULT_FPS, *, min_frames: int = 0
+) -> Iterator[DecodedFrame]:
+    """Decode ``path`` into upright RGB frames at ``fps``, exactly the frames FFmpeg's ``fps`` filter picks.
+
+    ``fps`` None or 0 keeps every decoded frame. With ``min_frames`` (2 for the recurrent model) a clip with
+    fewer decoded source frames is an InputError, raised before any frame is yielded. A clip that fails
+    part-way (corrupt data) yields what decoded, then raises InputError naming the file and the frame reached;
+    an mp4/mov cut short (index past the end of file) is refused before the first frame. Memory is constant
+    in clip length: at most two source frames (plus ``min_frames``) are held.
+    """
+    path = Path(path)
+    container, stream = _open(path)
+    with container:
+        _check_index(path, stream)
+        selector = FpsSelector(fps, stream.time_base) if fps else None
+        yield from _decode(path, container, stream, selector, min_frames)
+
+
+def _decode(
+    path: Path, container: Any, stream: Any, selector: FpsSelector | None, min_frames: int
+) -> Iterator[DecodedFrame]:
+    ts = _FfmpegTimestamps(container, stream)
+    tag = _rotation_tag(stream)
+    held: dict[int, tuple[Any, float]] = {}  # source index -> (av frame, source time), for selector.pending
+    ready: deque[DecodedFrame] = deque()
+    size: tuple[int, ...] | None = None
+    start: int | None = None
+    decoded = 0
+    last_source = -1
+
+    def convert(frame: Any, source_index: int) -> np.ndarray:
+        nonlocal size
+        try:
+            rgb = frame.to_ndarray(format="rgb24")
+        except (av.error.FFmpegError, ValueError) as exc:
+            raise _error(path, f"cannot convert frame {source_index} to RGB ({_cause(exc)})") from exc
+        rgb = _orientation(_display_matrix(frame), tag)[1](rgb)
+        if size is None:
+            size = rgb.shape
+        elif rgb.shape != size:
+            raise _error(
+                path,
+                f"frame size changes mid-clip at source frame {source_index}: "
+                f"{size[1]}x{size[0]} -> {rgb.shape[1]}x{rgb.shape[0]}",
+            )
+        return rgb
+
+    def emit(decisions: list[FpsDecision], rate: float) -> None:
+        nonlocal last_source
+        for d in decisions:
+            frame, t_src = held[d.source_index]
+            image = convert(frame, d.source_index)
+            if d.source_index == last_source:
+                image = image.copy()  # a duplicate gets its own buffer: callers may change frames in place
+            last_source = d.source_index
+            ready.append(DecodedFrame(image, d.index, d.source_index, d.index / rate, t_src))
+
+    for frame in _frames(path, container, stream):
+        pts = ts.frame_pts(frame)
+        if start is None:  # source times count from the stream start, in the same shifted pts domain
+            start = pts if stream.start_time is None or ts.unreliable else stream.start_time + ts.offset
+        t_src = float((pts - start) * ts.tb)
+        index = decoded
+        decoded += 1
+        if selector is None:
+            ready.append(DecodedFrame(convert(frame, index), index, index, t_src, t_src))
+        else:
+            held[index] = (frame, t_src)
+            emit(selector.push(pts), float(selector.fps))
+            for k in [k for k in held if k not in selector.pending]:
+                del held[k]
+        if decoded >= min_frames:
+            while ready:
+                yield ready.popleft()
+    if decoded == 0:
+        raise _error(path, "no decodable video frames (truncated or corrupt?)")
+    if decoded < min_frames:
+        raise _error(path, f"too short: {decoded} frame(s) decoded, at least {min_frames} needed")
+    if selector is not None:
+        emit(selector.close(ts.eof_pts()), float(selector.fps))
+    while ready:
+        yield ready.popleft()
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Writing
+# ------------------------------------------------------------------------------------------------------------
+
+
+class VideoWriter:
+    """Write RGB uint8 frames to an H.264 (yuv420p, faststart) mp4 that browsers play.
+
+    The file appears at ``path`` only when :meth:`close` succeeds (atomic rename); on error nothing is left.
+    Odd widths/heights are padded by one pixel (yuv420p needs even sizes). Colours are converted as BT.601
+    limited range and tagged so, so that players do not shift them. A writer that got no frame writes nothing.
+
+    Example::
+
+        with VideoWriter(Path("out.mp4"), fps=18) as w:
+            for frame in frames:
+                w.write(frame)
+    """
+
+    def __init__(self, path: Path, fps: float, crf: int = 18, preset: str = "medium") -> None:
+        self.path = Path(path)
+        self.fps = fps
+        self.rate = _as_fraction(fps)
+        self.crf = crf
+        self.preset = preset
+        self._ctx: Any = None
+        self._tmp: Path | None = None
+        self._container: Any = None
+        self._stream: Any = None
+        self._finished = False
+        self.frames_written = 0
+
+    def _open(self, width: int, height: int) -> None:
+        self._ctx = atomic_path(self.path)
+        self._tmp = self._ctx.__enter__()
+        try:
+            opts = {"movflags": "+faststart"}
+            self._container = av.open(str(self._tmp), mode="w", format="mp4", options=opts)
+            self._stream = self._container.add_stream("libx264", rate=self.rate)
+            self._stream.width = width + (width % 2)
+            self._stream.height = height + (height % 2)
+            self._stream.pix_fmt = "yuv420p"
+            cc = self._stream.codec_context
+            cc.colorspace = cc.color_primaries = cc.color_trc = 6  # smpte170m: BT.601, as swscale converts
+            cc.color_range = 1  # limited ("tv")
+            self._stream.options = {"crf": str(self.crf), "preset": self.preset}
+        except BaseException as exc:
+            self._discard(exc)
+            raise
+
+    def write(self, frame: np.ndarray) -> None:
+        """Append one HxWx3 RGB uint8 frame."""
+        if self._finished:
+            raise RuntimeError(f"{self.path}: write after close/abort")
+        if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
+            raise InputError(f"{self.path}: frames must be HxWx3 uint8 RGB, got {frame.shape} {frame.dtype}")
+        h, w = frame.shape[:2]
+        if self._container is None:
+            self._open(w, h)
+        if (h + h % 2, w + w % 2) != (self._stream.height, self._stream.width):
+            raise InputError(f"{self.path}: frame size {w}x{h} differs from the video's first frame")
+        if h % 2 or w % 2:
+            frame = np.pad(frame, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+        vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")
+        vf.pts = self.frames_written
+        vf.time_base = 1 / self.rate
+        try:
+            for packet in self._stream.encode(vf):
+                self._container.mux(packet)
+        except BaseException as exc:
+            self._discard(exc)
+            raise
+        self.frames_written += 1
+
+    def close(self) -> None:
+        """Flush the encoder and move the finished file into place (nothing is written if no frame came)."""
+        self._finished = True
+        if self._container is None:
+            return
+        try:
+            for packet in self._stream.encode():
+                self._container.mux(packet)
+            self._container.close()
+        except BaseException as exc:
+            self._discard(exc)
+            raise
+        self._container = None
+        ctx, self._ctx = self._ctx, None
+        ctx.__exit__(None, None, None)
+
+    def abort(self) -> None:
+        """Drop the partial file. Safe to call more than once."""
+        self._discard(RuntimeError("aborted"))
+
+    def _discard(self, exc: BaseException) -> None:
+        self._finished = True
+        if self._container is not None:
+            try:
+                self._container.close()
+            except Exception:  # noqa: BLE001 - the file is being discarded anyway
+                pass
+            self._container = None
+        if self._ctx is not None:
+            ctx, self._ctx = self._ctx, None
+            ctx.__exit__(type(exc), exc, None)
+
+    def __enter__(self) -> VideoWriter:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
