@@ -16,10 +16,11 @@ from colonlight.train import EpochRecord, TrainConfig, train
 from .display import console
 
 
-def _synthetic_clips(run_dir: Path, n: int, seed: int, frames: int, split: str) -> list[Path]:
+def _synthetic_clips(run_dir: Path, n: int, seed: int, frames: int, split: str, render: int) -> list[Path]:
+    """Render (or reuse) synthetic clips from the generator's training family; returns their frame folders."""
     from colonlight.synth import make_dataset
 
-    dirs = make_dataset(run_dir / "data" / split, n, seed=seed, split="train", width=256, height=256,
+    dirs = make_dataset(run_dir / "data" / split, n, seed=seed, split="train", width=render, height=render,
                         n_frames=frames, fps=18.0, workers=2, video=False)
     return [d / "frames" for d in dirs]
 
@@ -36,6 +37,7 @@ def train_cmd(
     synthetic_seed: int = typer.Option(1000, "--synthetic-seed", help="Seed of the first synthetic clip."),
     synthetic_frames: int = typer.Option(100, "--synthetic-frames", min=12),
     synthetic_val: int = typer.Option(2, "--synthetic-val", min=0, help="Synthetic validation clips (seeds after the training ones)."),
+    synthetic_size: int = typer.Option(128, "--synthetic-size", min=32, help="Render size of synthetic clips (then resized to --size)."),
     method: str = typer.Option("rnn", "--method", help="rnn (the paper's model) | zerodce | zerodce++ (baselines)."),
     size: int = typer.Option(64, "--size", min=16, help="Training input size (match the inference default)."),
     epochs: int = typer.Option(10, "--epochs", min=1),
@@ -55,10 +57,11 @@ def train_cmd(
     val_clips = _clips(list(val or []))
     extra: dict[str, object] = {"command": command}
     if synthetic:
-        train_clips += _synthetic_clips(output, synthetic, synthetic_seed, synthetic_frames, "train")
-        extra["data"] = f"synthetic: {synthetic} clips x {synthetic_frames} frames, seeds {synthetic_seed}..{synthetic_seed + synthetic - 1}, split train"
+        train_clips += _synthetic_clips(output, synthetic, synthetic_seed, synthetic_frames, "train", synthetic_size)
+        extra["data"] = (f"synthetic: {synthetic} clips x {synthetic_frames} frames rendered at {synthetic_size}px, "
+                         f"seeds {synthetic_seed}..{synthetic_seed + synthetic - 1}, generator split 'train'")
         if synthetic_val and not val_clips:
-            val_clips = _synthetic_clips(output, synthetic_val, synthetic_seed + synthetic, synthetic_frames, "val")
+            val_clips = _synthetic_clips(output, synthetic_val, synthetic_seed + synthetic, synthetic_frames, "val", synthetic_size)
             extra["validation_data"] = f"synthetic: {synthetic_val} clips, seeds {synthetic_seed + synthetic}..{synthetic_seed + synthetic + synthetic_val - 1}"
     if not train_clips:
         raise typer.BadParameter("give clips to train on, or --synthetic N")

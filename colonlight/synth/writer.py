@@ -1,0 +1,250 @@
+"""Write synthetic clips to disk (video, frame folders, ground truth) and whole datasets in parallel.
+
+Layout of one clip folder (every file written atomically; ``synth.json`` last, so its presence means
+"complete")::
+
+    clip.mp4              H.264 of the disturbed frames at cfg.fps (if video=True)
+    frames/000000.png     disturbed RGB frames (if frames=True)
+    clean/000000.png      the same frames at the clip's fixed exposure, no disturbance
+    depth/000000.png      uint16 z-depth along the optical axis in units of 0.1 mm (value * 1e-4 = metres);
+                          0 = no wall within reach (far lumen)
+    poses.txt             TUM: "timestamp tx ty tz qx qy qz qw", camera-to-world, metres, OpenCV camera axes
+    intrinsics.json       pinhole fx, fy, cx, cy, width, height (pixels)
+    lighting.json         the disturbance model and per-frame ground truth (gain, contrast, exposure, ...)
+    synth.json            config, seed, colonlight and generator versions, file formats
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ..atomic import atomic_path, write_bytes_atomic, write_json_atomic
+from ..video import VideoWriter
+from .clip import SynthFrame, build_scene, render_frame
+from .config import Split, SynthConfig
+
+GENERATOR_VERSION = "1.0"
+DEPTH_UNIT_M = 1e-4
+LIGHTING_MODEL = (
+    "image = clip(display_gain * y ** contrast), clean = clip(y), "
+    "y = the clean frame in [0,1] before clipping; "
+    "display_gain = gain * exposure ** (contrast / camera_gamma); "
+    "exposure is linear and relative to clean_exposure"
+)
+
+
+def _colonlight_version() -> str:
+    try:
+        from .. import __version__  # type: ignore[attr-defined]
+
+        return str(__version__)
+    except ImportError:
+        pass
+    try:
+        from importlib.metadata import version
+
+        return version("colonlight")
+    except Exception:  # noqa: BLE001 - not installed (running from a checkout)
+        return "unknown"
+
+
+def rotation_to_quaternion(r: np.ndarray) -> np.ndarray:
+    """(qx, qy, qz, qw) with qw >= 0 of a 3x3 rotation matrix (Shepperd's method, stable for all angles)."""
+    m = r
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    if tr > 0:
+        s = 2.0 * np.sqrt(tr + 1.0)
+        q = np.array([(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s])
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = np.array([0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s])
+    elif m[1, 1] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = np.array([(m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s])
+    else:
+        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = np.array([(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s, (m[1, 0] - m[0, 1]) / s])
+    q /= np.linalg.norm(q)
+    return -q if q[3] < 0 else q
+
+
+def tum_line(time_s: float, pose: np.ndarray) -> str:
+    """One TUM trajectory line for a 4x4 camera-to-world pose."""
+    q = rotation_to_quaternion(pose[:3, :3])
+    t = pose[:3, 3]
+    return f"{time_s:.6f} {t[0]:.9f} {t[1]:.9f} {t[2]:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}"
+
+
+def encode_depth(depth_m: np.ndarray) -> np.ndarray:
+    """Metres (inf = none) -> uint16 in 0.1 mm with 0 = none (or beyond 6.5 m)."""
+    v = np.where(np.isfinite(depth_m), np.rint(depth_m / DEPTH_UNIT_M), 0)
+    v = np.where(v > 65535, 0, v)
+    return v.astype(np.uint16)
+
+
+def decode_depth(png16: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`encode_depth`: float32 metres with inf where no wall."""
+    d = png16.astype(np.float32) * np.float32(DEPTH_UNIT_M)
+    return np.where(png16 == 0, np.float32(np.inf), d)
+
+
+def _write_png(path: Path, img: np.ndarray) -> None:
+    """PNG through cv2.imencode, renamed into place (no fsync per frame: thousands of small files)."""
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
+    ok, buf = cv2.imencode(".png", img)
+    if not ok:
+        raise OSError(f"{path}: PNG encoding failed")
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(buf.tobytes())
+
+
+def _frame_name(i: int) -> str:
+    return f"{i:06d}.png"
+
+
+def write_clip(
+    out_dir: Path,
+    cfg: SynthConfig,
+    seed: int,
+    *,
+    video: bool = True,
+    frames: bool = True,
+    clean: bool = True,
+    depth: bool = True,
+    crf: int = 18,
+) -> Path:
+    """Render clip ``(cfg, seed)`` into ``out_dir`` (see the module docstring for the layout); returns
+    ``out_dir``."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    scene = build_scene(cfg, seed)
+    poses: list[str] = []
+    per_frame: list[dict[str, Any]] = []
+    writer = VideoWriter(out_dir / "clip.mp4", fps=cfg.fps, crf=crf) if video else None
+    try:
+        for i in range(cfg.n_frames):
+            f: SynthFrame = render_frame(scene, i)
+            if writer is not None:
+                writer.write(f.image)
+            if frames:
+                _write_png(out_dir / "frames" / _frame_name(i), f.image)
+            if clean:
+                _write_png(out_dir / "clean" / _frame_name(i), f.clean)
+            if depth:
+                _write_png(out_dir / "depth" / _frame_name(i), encode_depth(f.depth))
+            poses.append(tum_line(f.time_s, f.pose))
+            per_frame.append({"index": i, "time_s": f.time_s, **f.lighting, "close_occluder": f.occluder})
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
+    if writer is not None:
+        writer.close()
+    write_bytes_atomic(out_dir / "poses.txt", ("\n".join(poses) + "\n").encode())
+    write_json_atomic(out_dir / "intrinsics.json", scene.intrinsics.to_dict())
+    lt = scene.lighting
+    write_json_atomic(
+        out_dir / "lighting.json",
+        {
+            "model": LIGHTING_MODEL,
+            "camera_gamma": lt.camera_gamma,
+            "clean_exposure": lt.clean_exposure,
+            "steady": cfg.steady,
+            "undisturbed_seeds": cfg.undisturbed_seeds,
+            "events": lt.events,
+            "frames": per_frame,
+        },
+    )
+    write_json_atomic(
+        out_dir / "synth.json", _manifest(cfg, seed, video=video, frames=frames, clean=clean, depth=depth)
+    )
+    return out_dir
+
+
+def _manifest(cfg: SynthConfig, seed: int, **written: bool) -> dict[str, Any]:
+    return {
+        "generator": "colonlight.synth",
+        "generator_version": GENERATOR_VERSION,
+        "colonlight_version": _colonlight_version(),
+        "seed": int(seed),
+        "config": cfg.to_dict(),
+        "written": written,
+        "formats": {
+            "frames": "RGB PNG, 8 bit, disturbed (what the scope records)",
+            "clean": "RGB PNG, 8 bit, same scene at the clip's fixed exposure without disturbance",
+            "depth": {
+                "encoding": "uint16 PNG",
+                "unit_m": DEPTH_UNIT_M,
+                "invalid": 0,
+                "kind": "z-depth along the optical axis",
+            },
+            "poses": "TUM 'timestamp tx ty tz qx qy qz qw', camera-to-world, metres, "
+            "OpenCV axes (x right, y down, z forward)",
+            "lighting": LIGHTING_MODEL,
+        },
+    }
+
+
+def _is_complete(out_dir: Path, cfg: SynthConfig, seed: int) -> bool:
+    """True if ``out_dir`` holds a finished clip of exactly this config and seed (resume support)."""
+    try:
+        meta = json.loads((out_dir / "synth.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return meta.get("seed") == seed and meta.get("config") == json.loads(json.dumps(cfg.to_dict()))
+
+
+def _dataset_job(args: tuple[Path, dict[str, Any], int, dict[str, bool]]) -> Path:
+    out_dir, cfg_dict, seed, flags = args
+    cfg = SynthConfig.from_dict(cfg_dict)
+    if _is_complete(out_dir, cfg, seed):
+        return out_dir
+    return write_clip(out_dir, cfg, seed, **flags)
+
+
+def _init_worker() -> None:
+    cv2.setNumThreads(1)  # one process per core already
+
+
+def make_dataset(
+    out_dir: Path,
+    n_clips: int,
+    *,
+    seed: int = 0,
+    split: Split = "train",
+    width: int = 256,
+    height: int = 256,
+    n_frames: int = 100,
+    fps: float = 18,
+    workers: int = 2,
+    video: bool = False,
+    **overrides: Any,
+) -> list[Path]:
+    """Render ``n_clips`` clips into ``out_dir/clip_00000`` ...; clip i uses seed ``seed + i`` and a config
+    drawn from ``split``'s ranges (``overrides``, e.g. steady=True, are passed to :meth:`SynthConfig.sample`).
+
+    Finished clips with the same config and seed are kept (an interrupted run resumes). Use disjoint seed
+    ranges for train and held-out sets.
+    """
+    out_dir = Path(out_dir)
+    jobs = []
+    for i in range(n_clips):
+        s = seed + i
+        rng = np.random.default_rng([s, 0 if split == "train" else 1])
+        cfg = SynthConfig.sample(
+            rng, split=split, width=width, height=height, n_frames=n_frames, fps=fps, **overrides
+        )
+        jobs.append((out_dir / f"clip_{i:05d}", cfg.to_dict(), s, {"video": video}))
+    if workers <= 1 or len(jobs) <= 1:
+        return [_dataset_job(j) for j in jobs]
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker) as pool:
+        return list(pool.map(_dataset_job, jobs))

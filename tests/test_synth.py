@@ -1,0 +1,289 @@
+"""Tests of the synthetic colonoscopy generator (colonlight.synth): determinism, ground-truth files, the
+disturbance model, close occluders and a "looks like colonoscopy" sanity check. Small frames keep it quick."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import av
+import cv2
+import numpy as np
+import pytest
+
+from colonlight.synth import (
+    PARAM_SPECS,
+    SynthConfig,
+    SynthFrame,
+    build_scene,
+    decode_depth,
+    encode_depth,
+    generate_clip,
+    make_dataset,
+    write_clip,
+)
+from colonlight.synth.writer import rotation_to_quaternion
+
+W = 64
+
+
+def _cfg(seed: int, **kw: object) -> SynthConfig:
+    kw.setdefault("width", W)
+    kw.setdefault("height", W)
+    kw.setdefault("n_frames", 10)
+    return SynthConfig.sample(np.random.default_rng(seed), **kw)  # type: ignore[arg-type]
+
+
+def _clip(cfg: SynthConfig, seed: int) -> list[SynthFrame]:
+    return list(generate_clip(cfg, seed))
+
+
+def _quat_to_rot(q: np.ndarray) -> np.ndarray:
+    x, y, z, w = q
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+# ------------------------------------------------------------------------------------------------ config
+
+
+def test_heldout_ranges_are_disjoint_from_train() -> None:
+    for name, spec in PARAM_SPECS.items():
+        lo, hi = spec.train
+        for a, b in spec.heldout:
+            assert b <= lo or a >= hi, name
+
+
+def test_sample_respects_split_ranges() -> None:
+    for s in range(20):
+        tr = SynthConfig.sample(np.random.default_rng(s), split="train")
+        assert tr.heldout_params == ()
+        for name, spec in PARAM_SPECS.items():
+            v = getattr(tr, name)
+            assert v == 0.0 or spec.train[0] - 1e-9 <= v <= spec.train[1] + 1e-9, name
+        ho = SynthConfig.sample(np.random.default_rng(s), split="heldout")
+        assert len(ho.heldout_params) >= 2
+        for name in ho.heldout_params:
+            v = getattr(ho, name)
+            assert any(a - 1e-9 <= v <= b + 1e-9 for a, b in PARAM_SPECS[name].heldout), name
+
+
+def test_config_roundtrip_and_validation() -> None:
+    cfg = _cfg(3, close_occluder=True)
+    assert cfg.close_occluder == "force"
+    assert SynthConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
+    with pytest.raises(ValueError):
+        SynthConfig(close_occluder="sometimes")  # type: ignore[arg-type]
+    with pytest.raises(ValueError):
+        SynthConfig.from_dict({"no_such_field": 1})
+
+
+# ------------------------------------------------------------------------------------------------ determinism
+
+
+def test_same_seed_same_bytes_different_seed_differs() -> None:
+    cfg = _cfg(1, n_frames=4)
+    a, b = _clip(cfg, 7), _clip(cfg, 7)
+    for fa, fb in zip(a, b, strict=True):
+        assert fa.image.tobytes() == fb.image.tobytes()
+        assert fa.clean.tobytes() == fb.clean.tobytes()
+        assert fa.depth.tobytes() == fb.depth.tobytes()
+        assert np.array_equal(fa.pose, fb.pose)
+        assert fa.lighting == fb.lighting
+    c = _clip(cfg, 8)
+    assert not np.array_equal(a[0].clean, c[0].clean)
+
+
+def test_frame_types_and_pose_validity() -> None:
+    cfg = _cfg(2, n_frames=5, fps=25.0)
+    for i, f in enumerate(generate_clip(cfg, 2)):
+        assert f.image.shape == (W, W, 3) and f.image.dtype == np.uint8
+        assert f.clean.shape == (W, W, 3) and f.clean.dtype == np.uint8
+        assert f.depth.shape == (W, W) and f.depth.dtype == np.float32
+        assert np.all((f.depth > 0) | ~np.isfinite(f.depth))
+        r = f.pose[:3, :3]
+        assert np.allclose(r @ r.T, np.eye(3), atol=1e-9) and np.isclose(np.linalg.det(r), 1.0)
+        assert f.time_s == pytest.approx(i / 25.0)
+        assert set(f.lighting) >= {"gain", "contrast", "exposure", "disturbed"}
+
+
+def test_depth_is_on_the_wall() -> None:
+    """Back-projected depth lands on the tube wall (depth is z-depth in metres, pose camera-to-world)."""
+    cfg = _cfg(4, n_frames=3)
+    scene = build_scene(cfg, 4)
+    f = next(generate_clip(cfg, 4))
+    intr = scene.intrinsics
+    v, u = np.mgrid[0:W:7, 0:W:7]
+    z = f.depth[v, u]
+    ok = np.isfinite(z)
+    x = (u - intr.cx) / intr.fx * z
+    y = (v - intr.cy) / intr.fy * z
+    pc = np.stack([x[ok], y[ok], z[ok]], axis=1)
+    pw_mm = (pc @ f.pose[:3, :3].T + f.pose[:3, 3]) * 1000.0
+    (F,) = scene.tube.evaluate(pw_mm.astype(np.float32))
+    assert ok.mean() > 0.5
+    assert np.median(np.abs(F)) < 0.1 and np.percentile(np.abs(F), 95) < 0.6
+
+
+# ------------------------------------------------------------------------------------------------ files
+
+
+@pytest.fixture(scope="module")
+def written(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, SynthConfig, list[SynthFrame]]:
+    cfg = _cfg(5, n_frames=12, fps=18.0, undisturbed_seeds=True)
+    out = write_clip(tmp_path_factory.mktemp("clip") / "c", cfg, 5, video=True, frames=True)
+    return out, cfg, _clip(cfg, 5)
+
+
+def test_written_files_are_consistent(written: tuple[Path, SynthConfig, list[SynthFrame]]) -> None:
+    out, cfg, frames = written
+    n = cfg.n_frames
+    for sub in ("frames", "clean", "depth"):
+        assert sorted(p.name for p in (out / sub).iterdir()) == [f"{i:06d}.png" for i in range(n)]
+    lines = (out / "poses.txt").read_text().splitlines()
+    assert len(lines) == n
+    for i, line in enumerate(lines):
+        vals = np.array([float(x) for x in line.split()])
+        assert len(vals) == 8
+        assert vals[0] == pytest.approx(i / cfg.fps, abs=1e-6)
+        q = vals[4:]
+        assert np.linalg.norm(q) == pytest.approx(1.0, abs=1e-6)
+        assert np.allclose(_quat_to_rot(q), frames[i].pose[:3, :3], atol=1e-6)
+        assert np.allclose(vals[1:4], frames[i].pose[:3, 3], atol=1e-8)
+    intr = json.loads((out / "intrinsics.json").read_text())
+    assert {"fx", "fy", "cx", "cy", "width", "height"} <= set(intr) and intr["width"] == W
+    light = json.loads((out / "lighting.json").read_text())
+    assert len(light["frames"]) == n
+    meta = json.loads((out / "synth.json").read_text())
+    assert meta["seed"] == 5 and meta["config"] == json.loads(json.dumps(cfg.to_dict()))
+    assert meta["generator_version"] and "colonlight_version" in meta
+    # the PNGs hold exactly what the iterator yields
+    for i in (0, n - 1):
+        img = cv2.cvtColor(cv2.imread(str(out / "frames" / f"{i:06d}.png")), cv2.COLOR_BGR2RGB)
+        assert np.array_equal(img, frames[i].image)
+        dep = decode_depth(cv2.imread(str(out / "depth" / f"{i:06d}.png"), cv2.IMREAD_UNCHANGED))
+        fin = np.isfinite(frames[i].depth)
+        assert np.array_equal(np.isfinite(dep), fin)
+        assert np.allclose(dep[fin], frames[i].depth[fin], atol=1e-4)
+
+
+def test_video_decodes_to_all_frames(written: tuple[Path, SynthConfig, list[SynthFrame]]) -> None:
+    out, cfg, frames = written
+    with av.open(str(out / "clip.mp4")) as c:
+        dec = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
+    assert len(dec) == cfg.n_frames
+    assert np.abs(dec[3].astype(int) - frames[3].image.astype(int)).mean() < 8  # lossy, but the same picture
+
+
+def test_undisturbed_seeds(written: tuple[Path, SynthConfig, list[SynthFrame]]) -> None:
+    _, _, frames = written
+    for f in frames[:2]:
+        assert np.array_equal(f.image, f.clean)
+        assert f.lighting == {**f.lighting, "gain": 1.0, "contrast": 1.0, "exposure": 1.0, "disturbed": False}
+    assert any(f.lighting["disturbed"] for f in frames[2:])
+
+
+def test_make_dataset_parallel_and_resume(tmp_path: Path) -> None:
+    dirs = make_dataset(tmp_path, 2, seed=11, split="heldout", width=32, height=32, n_frames=3, workers=2)
+    assert [d.name for d in dirs] == ["clip_00000", "clip_00001"]
+    metas = [json.loads((d / "synth.json").read_text()) for d in dirs]
+    assert [m["seed"] for m in metas] == [11, 12]
+    assert all(m["config"]["split"] == "heldout" for m in metas)
+    # a worker process renders the same bytes as this process
+    cfg = SynthConfig.from_dict(metas[1]["config"])
+    last = _clip(cfg, 12)[-1]
+    img = cv2.cvtColor(cv2.imread(str(dirs[1] / "frames" / "000002.png")), cv2.COLOR_BGR2RGB)
+    assert np.array_equal(img, last.image)
+    stamp = (dirs[0] / "synth.json").stat().st_mtime_ns
+    make_dataset(tmp_path, 1, seed=11, split="heldout", width=32, height=32, n_frames=3, workers=1)
+    assert (dirs[0] / "synth.json").stat().st_mtime_ns == stamp  # complete clip kept
+
+
+def test_quaternion_and_depth_encoding() -> None:
+    rng = np.random.default_rng(0)
+    mats = [np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0]), np.eye(3)]
+    for _ in range(20):
+        q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+        mats.append(q * np.sign(np.linalg.det(q)))
+    for m in mats:
+        assert np.allclose(_quat_to_rot(rotation_to_quaternion(m)), m, atol=1e-9)
+    d = np.array([[0.0123, np.inf], [1.5, 7.0]], np.float32)
+    back = decode_depth(encode_depth(d))
+    assert back[0, 0] == pytest.approx(0.0123, abs=1e-4) and back[1, 0] == pytest.approx(1.5, abs=1e-4)
+    assert np.isinf(back[0, 1]) and np.isinf(back[1, 1])  # beyond the 16-bit range -> no value
+
+
+# ------------------------------------------------------------------------------------------------ lighting
+
+
+def test_steady_clip_is_clean() -> None:
+    for f in generate_clip(_cfg(6, steady=True, n_frames=6), 6):
+        assert np.array_equal(f.image, f.clean)
+        assert not f.lighting["disturbed"]
+
+
+def test_disturbed_frames_differ_and_gain_matches_brightness() -> None:
+    # contrast events off so image = clip(display_gain * clean): the ratio on unsaturated pixels is the gain
+    cfg = _cfg(7, n_frames=24, gain_rate_hz=2.0, contrast_rate_hz=0.0, ae_strength=0.8)
+    frames = _clip(cfg, 7)
+    checked = 0
+    for f in frames:
+        g = f.lighting["display_gain"]
+        if not f.lighting["disturbed"]:
+            assert np.array_equal(f.image, f.clean)
+            continue
+        assert f.lighting["contrast"] == 1.0
+        if abs(g - 1) > 0.05:
+            assert np.abs(f.image.astype(int) - f.clean.astype(int)).mean() > 1.0
+        c = f.clean.astype(float)
+        im = f.image.astype(float)
+        ok = (c > 25) & (c < 230) & (im > 5) & (im < 250)
+        if ok.sum() > 200:
+            assert np.median(im[ok] / c[ok]) == pytest.approx(g, rel=0.05)
+            checked += 1
+    assert checked >= 5
+
+
+def test_contrast_changes_follow_power_curve() -> None:
+    cfg = _cfg(8, n_frames=30, gain_rate_hz=0.0, contrast_rate_hz=3.0, ae_strength=0.0)
+    seen = 0
+    for f in generate_clip(cfg, 8):
+        k, g = f.lighting["contrast"], f.lighting["display_gain"]
+        assert 0.6 - 1e-9 <= k <= 1.6 + 1e-9
+        if abs(k - 1) > 0.1:
+            c = f.clean.astype(float) / 255
+            ok = (c > 0.1) & (c < 0.9)
+            pred = np.clip(g * c[ok] ** k, 0, 1) * 255
+            assert np.abs(pred - f.image[ok]).mean() < 1.5
+            seen += 1
+    assert seen > 0
+
+
+# ------------------------------------------------------------------------------------------------ appearance
+
+
+def test_close_occluder_forced_and_forbidden() -> None:
+    for seed in (0, 2):
+        frames = _clip(_cfg(seed, n_frames=12, close_occluder="force", steady=True), seed)
+        occ = [f for f in frames if f.occluder]
+        assert occ
+        for f in occ:
+            y = np.sort(f.clean.astype(float).mean(axis=2).ravel())
+            assert y[len(y) // 2 :].mean() > 2.0 * max(y[: len(y) // 4].mean(), 1.0)
+    assert not any(f.occluder for f in generate_clip(_cfg(0, close_occluder="forbid"), 0))
+
+
+def test_looks_like_colonoscopy() -> None:
+    for seed in (20, 21, 22):
+        cfg = _cfg(seed, n_frames=3, steady=True, close_occluder="forbid")
+        f = _clip(cfg, seed)[-1]
+        m = f.clean.reshape(-1, 3).astype(float).mean(axis=0)
+        assert m[0] > m[1] and m[0] > m[2], m  # pink-red wall
+        y = f.clean.astype(float).mean(axis=2)
+        assert np.percentile(y, 5) < 0.35 * np.percentile(y, 95)  # a dark lumen beside bright walls
+        assert np.isinf(f.depth).any() or np.nanmax(f.depth[np.isfinite(f.depth)]) > 0.05  # it looks far
