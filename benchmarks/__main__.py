@@ -9,6 +9,7 @@ BENCHMARKS = {
     "input_size": "benchmarks.input_size",
     "enhance": "benchmarks.enhance_vs_ffmpeg",
     "service": "benchmarks.service_load",
+    "quality_gate": "benchmarks.quality_gate",
 }
 
 

@@ -83,9 +83,7 @@ class BatchDisplay:
         elif event == "frames" and clip in self.clip_tasks:
             self.progress.update(self.clip_tasks[clip], completed=data["done"])
         elif event == "end" and clip in self.clip_tasks:
-            task = self.clip_tasks.pop(clip)
-            self.progress.update(task, total=self.progress.tasks[task].completed)
-            self.progress.remove_task(task)
+            self.progress.remove_task(self.clip_tasks.pop(clip))
 
     def outcome(self, o: ClipOutcome) -> None:
         if self.progress:

@@ -41,3 +41,24 @@ def method_options(
     elif gamma is not None:
         raise typer.BadParameter(f"--gamma applies only to --method gamma")
     return opts
+
+
+def invocation(ctx: typer.Context) -> str:
+    """The command line that reproduces this call: the options given (on the line or by environment), in order."""
+    import shlex
+
+    words = ["colonlight", ctx.info_name or ""]
+    for param in ctx.command.params:
+        source = ctx.get_parameter_source(param.name or "")
+        if getattr(source, "name", None) not in ("COMMANDLINE", "ENVIRONMENT"):
+            continue
+        value = ctx.params.get(param.name or "")
+        values = value if isinstance(value, (list, tuple)) else [value]
+        if not param.opts[0].startswith("-"):  # arguments
+            words += [str(v) for v in values]
+        elif getattr(param, "is_flag", False):
+            words.append(param.opts[0] if value else (param.secondary_opts or [param.opts[0]])[0])
+        else:
+            for v in values:
+                words += [param.opts[0], str(v)]
+    return " ".join(shlex.quote(w) for w in words)

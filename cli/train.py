@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import shlex
-import sys
 from pathlib import Path
 from typing import Optional
 
@@ -14,6 +12,7 @@ from colonlight.batch import discover_clips
 from colonlight.train import EpochRecord, TrainConfig, train
 
 from .display import console
+from .options import invocation
 
 
 def _synthetic_clips(run_dir: Path, n: int, seed: int, frames: int, split: str, render: int) -> list[Path]:
@@ -30,6 +29,7 @@ def _clips(paths: list[Path]) -> list[Path]:
 
 
 def train_cmd(
+    ctx: typer.Context,
     data: Optional[list[Path]] = typer.Argument(None, help="Clips: videos and/or frame folders (walked recursively)."),
     output: Path = typer.Option(Path("colonlight-train"), "--output", "-o", help="Run folder: checkpoints/, the weights and card."),
     val: Optional[list[Path]] = typer.Option(None, "--val", help="Validation clip(s); default: the last clip of DATA."),
@@ -52,7 +52,7 @@ def train_cmd(
     fps: float = typer.Option(18.0, "--fps", help="Extraction rate for video clips (0: every frame)."),
 ) -> None:
     """Train a model; writes OUTPUT/NAME.safetensors and its model card OUTPUT/NAME.json."""
-    command = "colonlight " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    command = invocation(ctx)
     train_clips = _clips(list(data or []))
     val_clips = _clips(list(val or []))
     extra: dict[str, object] = {"command": command}
@@ -68,10 +68,7 @@ def train_cmd(
     if not val_clips and len(train_clips) > 1:
         val_clips = [train_clips.pop()]
     if method in ("zerodce", "zerodce++"):
-        from colonlight.methods.zerodce import train_zerodce_on_clips
-
-        path = train_zerodce_on_clips(train_clips, method, output, epochs=epochs, size=size, seed=seed, card_extra=extra)
-        console.print(f"weights: {path}")
+        _train_zerodce(train_clips, method, output, name, epochs, size, batch, lr, seed, fps, extra)
         return
     if method != "rnn":
         raise typer.BadParameter("choose rnn, zerodce or zerodce++", param_hint="--method")
@@ -94,6 +91,30 @@ def train_cmd(
 
         result = train(train_clips, val_clips, output, cfg, name=name, card_extra=extra, resume=resume,
                        on_step=on_step, on_epoch=on_epoch)
+    console.print(f"weights: {result.weights}\ncard:    {result.weights.with_suffix('.json')}")
+
+
+def _train_zerodce(
+    clips: list[Path], variant: str, output: Path, name: str, epochs: int, size: int, batch: int, lr: float,
+    seed: int, fps: float, extra: dict[str, object],
+) -> None:
+    """Zero-DCE / Zero-DCE++ on every 3rd frame of the clips, without the colour-constancy loss (as the paper did)."""
+    from colonlight.methods.zerodce_train import train_zerodce
+    from colonlight.sources import clip_frames
+
+    def frames():  # type: ignore[no-untyped-def]
+        for clip in clips:
+            for f in clip_frames(clip, fps=fps or None):
+                if f.index % 3 == 0:
+                    yield f.image
+
+    stem = name if name != "colonlight-rnn" else variant
+    result = train_zerodce(
+        frames(), variant=variant, epochs=epochs, lr=lr, batch=batch, size=size, seed=seed,
+        out_path=output / f"{stem}.safetensors", colour_constancy_weight=0.0, name=stem,
+        card_extra={**extra, "frames": "every 3rd frame of the training clips"},
+        on_epoch=lambda e: console.print(f"epoch {e.epoch}: loss {e.loss:.4f}, {e.seconds:.0f} s"),
+    )
     console.print(f"weights: {result.weights}\ncard:    {result.weights.with_suffix('.json')}")
 
 

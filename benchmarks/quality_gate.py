@@ -1,0 +1,118 @@
+"""The default model's quality gate, on held-out synthetic clips (settings and seeds never used in training).
+
+24 clips of 72 frames (256x256), drawn from the generator's "heldout" family with seeds 700000..700023:
+every 4th clip steady (lighting already constant), the others disturbed; of those, two thirds start with two
+undisturbed frames (so the enhanced frames can be compared to the clean ones), and a third are forced to have
+close-occluder moments. Gates (README, "Quality gate"):
+
+1. flicker (mean |change of mean luminance| over non-specular, non-border pixels) cut by >= 50% on average over
+   the disturbed clips;
+2. restoration: mean PSNR to the clean frames higher than the input's, on clips with undisturbed seeds;
+3. steady clips are not darkened (mean luminance not lower than the input's by more than 0.005).
+
+Run: ``python -m benchmarks.quality_gate [--weights PATH ...]`` (the authors' checkpoint is added when found).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from pathlib import Path
+
+import numpy as np
+
+from colonlight.methods import create_method
+from colonlight.metrics import ClipLighting, clip_lighting
+from colonlight.pipeline import iter_enhanced
+
+from .common import AUTHORS_CKPT, markdown_table
+
+N_CLIPS, N_FRAMES, SIZE, SEED0 = 24, 72, 256, 700_000
+
+
+def clip_settings(i: int) -> dict[str, object]:
+    """Overrides of clip i: steady, plain disturbed (undisturbed seeds), or close-occluder."""
+    if i % 4 == 0:
+        return {"steady": True}
+    if i % 4 == 3:
+        return {"close_occluder": "force", "undisturbed_seeds": True}
+    return {"undisturbed_seeds": True, "close_occluder": "forbid" if i % 4 == 1 else "random"}
+
+
+def heldout_clips() -> list[tuple[dict[str, object], list[np.ndarray], list[np.ndarray]]]:
+    from colonlight.synth import SynthConfig, generate_clip
+
+    clips = []
+    for i in range(N_CLIPS):
+        seed = SEED0 + i
+        over = clip_settings(i)
+        cfg = SynthConfig.sample(np.random.default_rng(seed), split="heldout", width=SIZE, height=SIZE,
+                                 n_frames=N_FRAMES, **over)
+        frames = list(generate_clip(cfg, seed=seed))
+        clips.append(({"seed": seed, **over}, [f.image for f in frames], [f.clean for f in frames]))
+    return clips
+
+
+def evaluate(method_name: str, options: dict[str, object], clips: list) -> list[ClipLighting]:  # type: ignore[type-arg]
+    method = create_method(method_name, **options)
+    out = []
+    for _, images, clean in clips:
+        enhanced = [r.frame for r in iter_enhanced(iter(images), method)]
+        out.append(clip_lighting(images, enhanced, clean))
+    return out
+
+
+def gate(results: list[ClipLighting], clips: list) -> dict[str, object]:  # type: ignore[type-arg]
+    disturbed = [r for r, c in zip(results, clips) if not c[0].get("steady")]
+    restore = [r for r, c in zip(results, clips) if c[0].get("undisturbed_seeds")]
+    steady = [r for r, c in zip(results, clips) if c[0].get("steady")]
+    occl = [r for r, c in zip(results, clips) if c[0].get("close_occluder") == "force"]
+    reduction = float(np.mean([r.flicker_reduction for r in disturbed]))
+    psnr_in = float(np.mean([r.psnr_in for r in restore]))
+    psnr_out = float(np.mean([r.psnr_out for r in restore]))
+    darkening = float(max(r.mean_luma_in - r.mean_luma_out for r in steady))
+    return {
+        "flicker_reduction": reduction,
+        "flicker_reduction_occluder_clips": float(np.mean([r.flicker_reduction for r in occl])),
+        "psnr_in": psnr_in,
+        "psnr_out": psnr_out,
+        "steady_max_darkening": darkening,
+        "pass_flicker": reduction >= 0.5,
+        "pass_restoration": psnr_out > psnr_in,
+        "pass_steady": darkening <= 0.005,
+    }
+
+
+def main(argv: list[str] | None = None) -> str:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.quality_gate")
+    parser.add_argument("--weights", action="append", default=[], help="extra checkpoints to report")
+    parser.add_argument("--json", type=Path, help="also write the numbers here")
+    args = parser.parse_args(argv or [])
+    clips = heldout_clips()
+    runs: dict[str, tuple[str, dict[str, object]]] = {"none": ("none", {}), "rnn (ours, default)": ("rnn", {"device": "cpu"})}
+    if AUTHORS_CKPT.is_file():
+        runs["rnn (authors' checkpoint)"] = ("rnn", {"device": "cpu", "weights": str(AUTHORS_CKPT)})
+    for w in args.weights:
+        runs[f"rnn ({Path(w).name})"] = ("rnn", {"device": "cpu", "weights": w})
+    rows, record = [], {}
+    for label, (name, opts) in runs.items():
+        g = gate(evaluate(name, opts, clips), clips)
+        record[label] = g
+        ok = all(v for k, v in g.items() if k.startswith("pass_"))
+        rows.append([label, f"{100 * g['flicker_reduction']:.0f}%", f"{100 * g['flicker_reduction_occluder_clips']:.0f}%",
+                     f"{g['psnr_in']:.2f} -> {g['psnr_out']:.2f}", f"{g['steady_max_darkening']:+.4f}",
+                     "PASS" if ok else "fail"])
+    if args.json:
+        args.json.write_text(json.dumps(record, indent=1))
+    return "\n".join([
+        f"## Quality gate: {N_CLIPS} held-out synthetic clips x {N_FRAMES} frames ({SIZE}x{SIZE}), seeds {SEED0}..{SEED0 + N_CLIPS - 1}", "",
+        markdown_table(["method", "flicker cut (disturbed)", "flicker cut (occluder clips)", "PSNR to clean (dB): input -> enhanced",
+                        "steady clips: max darkening", "gate"], rows),
+        "", "Gate: flicker cut >= 50%, PSNR up, darkening <= 0.005 (the `none` row is the control and fails by design).",
+    ])
+
+
+if __name__ == "__main__":
+    print(main(sys.argv[1:]))

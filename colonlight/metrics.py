@@ -1,0 +1,111 @@
+"""Lighting metrics on frame sequences (RGB uint8), shared by the quality gate and `colonlight evaluate`.
+
+Pixels that count ("content"): not specular in the input (luma > 0.7, the training loss's mask) and not black
+border (pixels that stay below 10/255 in every channel through the whole input clip: the scope's mask, not the
+lumen, which moves). Luminance is Rec. 601 luma in [0, 1].
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+SPECULAR = 0.7
+BORDER = 10 / 255
+_LUMA = np.array([0.299, 0.587, 0.114], dtype=np.float32)
+
+
+def luma(frame: np.ndarray) -> np.ndarray:
+    """``(H, W)`` float32 luma in [0, 1] of an RGB uint8 frame."""
+    return (frame.astype(np.float32) @ _LUMA) / 255.0
+
+
+def border_mask(frames: Sequence[np.ndarray]) -> np.ndarray:
+    """True where every frame of the clip is black (below 10/255 in all channels)."""
+    peak = np.zeros(frames[0].shape[:2], np.uint8)
+    for f in frames:
+        np.maximum(peak, f.max(axis=2), out=peak)
+    return peak < BORDER * 255
+
+
+def content_masks(inputs: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Per frame: pixels neither specular in that input frame nor border."""
+    border = border_mask(inputs)
+    return [(luma(f) <= SPECULAR) & ~border for f in inputs]
+
+
+def mean_luma(frames: Sequence[np.ndarray], masks: Sequence[np.ndarray]) -> np.ndarray:
+    """Mean luma over each frame's mask (NaN where a mask is empty)."""
+    out = []
+    for f, m in zip(frames, masks):
+        out.append(float(luma(f)[m].mean()) if m.any() else float("nan"))
+    return np.array(out)
+
+
+def flicker(frames: Sequence[np.ndarray], masks: Sequence[np.ndarray]) -> float:
+    """Mean over consecutive frames of |change in mean luminance| over the masked pixels."""
+    lum = mean_luma(frames, masks)
+    d = np.abs(np.diff(lum))
+    d = d[np.isfinite(d)]
+    return float(d.mean()) if d.size else 0.0
+
+
+def psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
+    """PSNR (dB) of two RGB uint8 frames over the masked pixels."""
+    if not mask.any():
+        return float("nan")
+    diff = a.astype(np.float64)[mask] - b.astype(np.float64)[mask]
+    mse = float((diff**2).mean())
+    return float("inf") if mse == 0 else 10.0 * np.log10(255.0**2 / mse)
+
+
+def dark_fraction(frame: np.ndarray, mask: np.ndarray, threshold: float = 0.1) -> float:
+    """Fraction of masked pixels with luma below ``threshold`` (dark regions)."""
+    return float((luma(frame)[mask] < threshold).mean()) if mask.any() else 0.0
+
+
+def bright_fraction(frame: np.ndarray, mask: np.ndarray, threshold: float = 0.95) -> float:
+    """Fraction of masked pixels with luma above ``threshold`` (over-exposure)."""
+    return float((luma(frame)[mask] > threshold).mean()) if mask.any() else 0.0
+
+
+@dataclass(frozen=True)
+class ClipLighting:
+    """Lighting summary of one enhanced clip against its input (and its clean frames when known)."""
+
+    flicker_in: float
+    flicker_out: float
+    mean_luma_in: float
+    mean_luma_out: float
+    psnr_in: float | None = None  # input vs clean
+    psnr_out: float | None = None  # enhanced vs clean
+
+    @property
+    def flicker_reduction(self) -> float:
+        """1 - flicker_out / flicker_in (0.5 = halved)."""
+        return 1.0 - self.flicker_out / self.flicker_in if self.flicker_in > 0 else 0.0
+
+
+def clip_lighting(
+    inputs: Sequence[np.ndarray],
+    outputs: Sequence[np.ndarray],
+    clean: Sequence[np.ndarray] | None = None,
+    skip: int = 2,
+) -> ClipLighting:
+    """Flicker and brightness of ``outputs`` against ``inputs``; PSNR to ``clean`` from frame ``skip`` on."""
+    masks = content_masks(inputs)
+    lin, lout = mean_luma(inputs, masks), mean_luma(outputs, masks)
+    p_in = p_out = None
+    if clean is not None:
+        p_in = float(np.nanmean([psnr(i, c, m) for i, c, m in zip(inputs[skip:], clean[skip:], masks[skip:])]))
+        p_out = float(np.nanmean([psnr(o, c, m) for o, c, m in zip(outputs[skip:], clean[skip:], masks[skip:])]))
+    return ClipLighting(
+        flicker_in=flicker(inputs, masks),
+        flicker_out=flicker(outputs, masks),
+        mean_luma_in=float(np.nanmean(lin)),
+        mean_luma_out=float(np.nanmean(lout)),
+        psnr_in=p_in,
+        psnr_out=p_out,
+    )

@@ -1,0 +1,27 @@
+"""The public API is what `colonlight.__all__` says, sorted, and every name in it exists."""
+
+from __future__ import annotations
+
+import colonlight
+
+
+def test_all_is_sorted_and_pinned() -> None:
+    assert colonlight.__all__ == sorted(colonlight.__all__)
+    assert colonlight.__all__ == [
+        "CheckpointError", "ClipOptions", "ClipResult", "ColonlightError", "DeviceError", "FrameResult", "GammaNet",
+        "InputError", "LoadedWeights", "Method", "MethodStream", "__version__", "apply_gamma", "apply_lut",
+        "available_methods", "create_method", "enhance_clip", "gamma_lut", "iter_enhanced", "load_weights",
+        "resolve_device", "save_weights",
+    ]
+    for name in colonlight.__all__:
+        assert hasattr(colonlight, name), name
+
+
+def test_engine_imports_no_shell_code() -> None:
+    import pathlib
+
+    root = pathlib.Path(colonlight.__file__).parent
+    for path in root.rglob("*.py"):
+        text = path.read_text(encoding="utf-8")
+        for banned in ("colonlight_cli", "colonlight_service", "import typer", "import fastapi", "from fastapi"):
+            assert banned not in text, f"{path} mentions {banned}"

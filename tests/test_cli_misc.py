@@ -1,0 +1,50 @@
+"""The other commands: synth, train, demo, device errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import av
+import pytest
+from typer.testing import CliRunner
+
+from colonlight_cli.main import app
+
+runner = CliRunner()
+
+
+def test_synth_command_writes_clips_with_ground_truth(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["synth", str(tmp_path / "s"), "--clips", "2", "--frames", "12", "--width", "96",
+                                 "--height", "80", "--seed", "5", "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    clips = sorted(p for p in (tmp_path / "s").iterdir() if p.is_dir())
+    assert len(clips) == 2
+    for c in clips:
+        assert len(list((c / "frames").glob("*.png"))) == 12
+        assert len((c / "poses.txt").read_text().strip().splitlines()) == 12
+        with av.open(str(c / "clip.mp4")) as v:
+            assert sum(1 for _ in v.decode(video=0)) == 12
+        assert json.loads((c / "synth.json").read_text())["seed"] in (5, 6)
+
+
+def test_synth_rejects_bad_split(tmp_path: Path) -> None:
+    assert runner.invoke(app, ["synth", str(tmp_path), "--split", "test"]).exit_code == 2
+
+
+def test_train_command_on_synthetic_clips(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["train", "--synthetic", "2", "--synthetic-frames", "12", "--synthetic-val", "1",
+                                 "--synthetic-size", "48", "--size", "32", "--epochs", "1", "-o", str(tmp_path / "run")])
+    assert result.exit_code == 0, result.output
+    card = json.loads((tmp_path / "run" / "colonlight-rnn.json").read_text())
+    assert card["training"]["command"].startswith("colonlight train ") and "--synthetic 2 " in card["training"]["command"]
+    assert "seeds 1000..1001" in card["training"]["data"]
+    assert len(card["training"]["history"]) == 1
+    out = runner.invoke(app, ["enhance", str(tmp_path / "run" / "data" / "val"), "-o", str(tmp_path / "o"),
+                              "--weights", str(tmp_path / "run" / "colonlight-rnn.safetensors"), "-q",
+                              "--pattern", "*/frames"])
+    assert out.exit_code == 0, out.output
+
+
+def test_train_needs_data(tmp_path: Path) -> None:
+    assert runner.invoke(app, ["train", "-o", str(tmp_path)]).exit_code == 2
