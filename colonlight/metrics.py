@@ -52,13 +52,22 @@ def flicker(frames: Sequence[np.ndarray], masks: Sequence[np.ndarray]) -> float:
     return float(d.mean()) if d.size else 0.0
 
 
-def psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
-    """PSNR (dB) of two RGB uint8 frames over the masked pixels."""
+def mse(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
+    """Mean squared error of two RGB uint8 frames over the masked pixels (NaN if the mask is empty)."""
     if not mask.any():
         return float("nan")
     diff = a.astype(np.float64)[mask] - b.astype(np.float64)[mask]
-    mse = float((diff**2).mean())
-    return float("inf") if mse == 0 else 10.0 * np.log10(255.0**2 / mse)
+    return float((diff**2).mean())
+
+
+def psnr_from_mse(value: float) -> float:
+    """PSNR in dB for 8-bit data (inf for identical frames)."""
+    return float("inf") if value == 0 else float(10.0 * np.log10(255.0**2 / value))
+
+
+def psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
+    """PSNR (dB) of two RGB uint8 frames over the masked pixels."""
+    return psnr_from_mse(mse(a, b, mask))
 
 
 def dark_fraction(frame: np.ndarray, mask: np.ndarray, threshold: float = 0.1) -> float:
@@ -94,13 +103,17 @@ def clip_lighting(
     clean: Sequence[np.ndarray] | None = None,
     skip: int = 2,
 ) -> ClipLighting:
-    """Flicker and brightness of ``outputs`` against ``inputs``; PSNR to ``clean`` from frame ``skip`` on."""
+    """Flicker and brightness of ``outputs`` against ``inputs``; PSNR to ``clean`` from frame ``skip`` on.
+
+    The clip's PSNR is that of its mean squared error over all compared frames (a per-frame mean of PSNR would
+    be infinite as soon as one input frame equals its clean frame).
+    """
     masks = content_masks(inputs)
     lin, lout = mean_luma(inputs, masks), mean_luma(outputs, masks)
     p_in = p_out = None
     if clean is not None:
-        p_in = float(np.nanmean([psnr(i, c, m) for i, c, m in zip(inputs[skip:], clean[skip:], masks[skip:])]))
-        p_out = float(np.nanmean([psnr(o, c, m) for o, c, m in zip(outputs[skip:], clean[skip:], masks[skip:])]))
+        p_in = psnr_from_mse(float(np.nanmean([mse(i, c, m) for i, c, m in zip(inputs[skip:], clean[skip:], masks[skip:])])))
+        p_out = psnr_from_mse(float(np.nanmean([mse(o, c, m) for o, c, m in zip(outputs[skip:], clean[skip:], masks[skip:])])))
     return ClipLighting(
         flicker_in=flicker(inputs, masks),
         flicker_out=flicker(outputs, masks),

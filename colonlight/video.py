@@ -492,14 +492,19 @@ def _decode(
     start: int | None = None
     decoded = 0
     last_source = -1
+    transform: Transform | None = None
 
     def convert(frame: Any, source_index: int) -> np.ndarray:
-        nonlocal size
+        nonlocal size, transform
         try:
             rgb = frame.to_ndarray(format="rgb24")
         except (av.error.FFmpegError, ValueError) as exc:
             raise _error(path, f"cannot convert frame {source_index} to RGB ({_cause(exc)})") from exc
-        rgb = _orientation(_display_matrix(frame), tag)[1](rgb)
+        if transform is None:
+            # Once per clip, from the first frame, as FFmpeg's autorotate does. (Reading a frame's side data
+            # makes a reference cycle that only the cyclic GC frees: doing it per frame let memory grow.)
+            transform = _orientation(_display_matrix(frame), tag)[1]
+        rgb = transform(rgb)
         if size is None:
             size = rgb.shape
         elif rgb.shape != size:

@@ -1,0 +1,66 @@
+"""Service settings, read from ``COLONLIGHT_*`` environment variables (pydantic-settings).
+
+Every setting has a default that works on a laptop; ``create_app(Settings(...))`` takes them explicitly in tests.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from pydantic import Field, SecretStr, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+def _default_workers() -> int:
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, cores // 2)
+
+
+class Settings(BaseSettings):
+    """Settings of ``colonlight serve``; each field is read from ``COLONLIGHT_<FIELD NAME IN CAPITALS>``."""
+
+    model_config = SettingsConfigDict(env_prefix="COLONLIGHT_", extra="ignore", validate_default=True)
+
+    host: str = Field("127.0.0.1", description="Address uvicorn binds to (`colonlight serve --host`).")
+    port: int = Field(8000, ge=0, le=65535, description="Port uvicorn listens on (`colonlight serve --port`).")
+    data_dir: Path = Field(Path("colonlight-service"), description="Jobs, results and the SQLite job table live here.")
+    workers: int = Field(default_factory=_default_workers, ge=1, le=64,
+                         description="Clips processed at once (default: one per two cores).")
+    queue_size: int = Field(16, ge=0, le=10_000, description="Jobs that may wait beyond the running ones; more get 503.")
+    max_upload_mb: float = Field(2048.0, gt=0, description="Largest accepted upload in MiB; larger ones get 413.")
+    sync_max_seconds: float = Field(20.0, gt=0, description="Longest clip POST /v1/enhance accepts (seconds).")
+    result_ttl_seconds: float = Field(24 * 3600.0, gt=0, description="Finished jobs are deleted this long after they end.")
+    sweep_interval_seconds: float = Field(60.0, gt=0, description="How often expired jobs are swept.")
+    retry_after_seconds: int = Field(10, ge=1, description="Retry-After sent with 503 when the queue is full.")
+    max_attempts: int = Field(2, ge=1, description="Starts of a job (restarts included) before it is marked failed.")
+    api_key: SecretStr | None = Field(None, description="When set, every route but /healthz and /readyz requires it.")
+    method: str = Field("rnn", description="Default enhancement method (loaded at start-up).")
+    weights: Path | None = Field(None, description="Checkpoint for rnn (default: the shipped model).")
+    model_size: str | None = Field(None, description="Default network input size for rnn (pixels or 'full').")
+    device: str = Field("auto", description="auto | cpu | cuda | cuda:N.")
+    fps: float = Field(18.0, ge=0, le=240, description="Default extraction rate (0 keeps every frame).")
+    cluster: str | None = Field(None, description="Dask scheduler address: run clips there instead of locally.")
+    method_cache: int = Field(4, ge=1, le=64, description="Methods with non-default options kept loaded (LRU).")
+    torch_threads: int | None = Field(None, ge=1, description="torch intra-op threads (default: cores / workers).")
+    log_level: str = Field("info", description="uvicorn log level.")
+    malloc_arena_max: int = Field(2, ge=0, description="glibc malloc arenas (0: glibc's default); keeps memory flat.")
+
+    @field_validator("api_key", mode="before")
+    @classmethod
+    def _empty_key_is_none(cls, value: object) -> object:
+        return None if value in ("", None) else value
+
+    @field_validator("model_size", "cluster", "weights", mode="before")
+    @classmethod
+    def _empty_is_none(cls, value: object) -> object:
+        return None if value == "" else value
+
+    @property
+    def max_upload_bytes(self) -> int:
+        return int(self.max_upload_mb * 1024 * 1024)
+
+    @property
+    def capacity(self) -> int:
+        """Jobs admitted at once: the running ones plus the waiting ones."""
+        return self.workers + self.queue_size
