@@ -44,8 +44,8 @@ def make_clip(path: Path, seconds: float, width: int, height: int, fps: int = SR
     from colonlight.synth import SynthConfig, generate_clip
 
     n = int(round(seconds * fps))
-    cfg = SynthConfig.sample(np.random.default_rng(7), split="heldout")
-    cfg.width, cfg.height, cfg.n_frames, cfg.fps = width // 2 // 2 * 2, height // 2 // 2 * 2, min(n, 300), float(fps)
+    cfg = SynthConfig.sample(np.random.default_rng(7), split="heldout", width=width // 2 // 2 * 2,
+                             height=height // 2 // 2 * 2, n_frames=min(n, 300), fps=float(fps))
     frames = [f.image for f in generate_clip(cfg, seed=7)]
     proc = subprocess.Popen(
         [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",

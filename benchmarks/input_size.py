@@ -36,8 +36,7 @@ def _synthetic_clips(n: int, frames: int) -> list[list[np.ndarray]]:
 
     clips = []
     for seed in range(900_000, 900_000 + n):
-        cfg = SynthConfig.sample(np.random.default_rng(seed), split="heldout")
-        cfg.width, cfg.height, cfg.n_frames = 384, 288, frames
+        cfg = SynthConfig.sample(np.random.default_rng(seed), split="heldout", width=384, height=288, n_frames=frames)
         clips.append([f.image for f in generate_clip(cfg, seed=seed)])
     return clips
 

@@ -25,8 +25,8 @@ def demo(
     import numpy as np
 
     clip_dir = output / "input"
-    cfg = SynthConfig.sample(np.random.default_rng(DEMO_SEED), split="heldout")
-    cfg.width, cfg.height, cfg.n_frames, cfg.fps = 480, 384, frames, 30.0
+    cfg = SynthConfig.sample(np.random.default_rng(DEMO_SEED), split="heldout", width=480, height=384,
+                             n_frames=frames, fps=30.0, undisturbed_seeds=True)
     video_path = clip_dir / "clip.mp4"
     if not video_path.is_file():
         console.print(f"rendering a synthetic clip ({frames} frames at 30 fps) into {clip_dir} ...")

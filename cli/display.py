@@ -38,6 +38,8 @@ class FpsColumn(TextColumn):
     def render(self, task: Any) -> Any:  # noqa: D102
         from rich.text import Text
 
+        if task.fields.get("unit") != "frames":
+            return Text("")
         speed = task.finished_speed or task.speed
         return Text(f"{speed:5.1f} fps" if speed else "   -- fps", style="cyan")
 
@@ -79,7 +81,7 @@ class BatchDisplay:
         if not self.progress:
             return
         if event == "start":
-            self.clip_tasks[clip] = self.progress.add_task(f"  {clip}", total=data.get("total"))
+            self.clip_tasks[clip] = self.progress.add_task(f"  {clip}", total=data.get("total"), unit="frames")
         elif event == "frames" and clip in self.clip_tasks:
             self.progress.update(self.clip_tasks[clip], completed=data["done"])
         elif event == "end" and clip in self.clip_tasks:

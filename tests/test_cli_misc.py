@@ -48,3 +48,23 @@ def test_train_command_on_synthetic_clips(tmp_path: Path) -> None:
 
 def test_train_needs_data(tmp_path: Path) -> None:
     assert runner.invoke(app, ["train", "-o", str(tmp_path)]).exit_code == 2
+
+
+def test_demo_runs_end_to_end_on_the_shipped_model(tmp_path: Path) -> None:
+    """`colonlight demo`: renders a clip, enhances it with the default model, prints where everything is."""
+    result = runner.invoke(app, ["demo", "-o", str(tmp_path / "demo"), "--frames", "30", "-q"])
+    assert result.exit_code == 0, result.output
+    out = tmp_path / "demo" / "enhanced" / "clip"
+    g = json.loads((out / "gammas.json").read_text())
+    assert g["model"]["name"] == "colonlight-rnn" and g["frame_count"] == 18  # 1 s at 30 fps -> 18 frames
+    assert len(list((out / "frames").glob("*.png"))) == 18 and (out / "enhanced.mp4").is_file()
+    for word in ("enhanced frames", "per-frame gamma", "enhanced video", str(out / "gammas.json")):
+        assert word in result.output.replace("\n", "")
+
+
+def test_info_shows_the_default_model_card() -> None:
+    result = runner.invoke(app, ["info", "--json"])
+    info = json.loads(result.output)
+    card = info["default_model"]["card"]
+    assert card["name"] == "colonlight-rnn" and card["input_size"] == 64
+    assert "synthetic" in card["training"]["data"] and card["training"]["history"]
