@@ -60,6 +60,20 @@ def card_path(weights: Path) -> Path:
     return weights.with_suffix(".json")
 
 
+def read_card(path: Path, digest: str) -> dict[str, Any]:
+    """The model card beside the weights at ``path`` (``{}`` if there is none), checked against their sha256."""
+    cp = card_path(path)
+    if not cp.is_file():
+        return {}
+    try:
+        card: dict[str, Any] = json.loads(cp.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise CheckpointError(f"{cp}: unreadable model card ({exc})") from exc
+    if card.get("sha256") and card["sha256"] != digest:
+        raise CheckpointError(f"{path}: sha256 {digest[:12]}... does not match its model card {cp.name}")
+    return card
+
+
 def _state_dict_from_pth(path: Path) -> dict[str, torch.Tensor]:
     try:
         obj = torch.load(path, map_location="cpu", weights_only=True)
@@ -110,14 +124,7 @@ def load_weights(path: Path | str | None = None) -> LoadedWeights:
             state = load_file(str(path))
         except (SafetensorError, OSError, ValueError) as exc:
             raise CheckpointError(f"{path}: corrupt or truncated safetensors file ({exc})") from exc
-        cp = card_path(path)
-        if cp.is_file():
-            try:
-                card = json.loads(cp.read_text(encoding="utf-8"))
-            except (OSError, ValueError) as exc:
-                raise CheckpointError(f"{cp}: unreadable model card ({exc})") from exc
-            if card.get("sha256") and card["sha256"] != digest:
-                raise CheckpointError(f"{path}: sha256 {digest[:12]}... does not match its model card {cp.name}")
+        card = read_card(path, digest)
         name = str(card.get("name") or path.stem)
     else:
         state = _state_dict_from_pth(path)

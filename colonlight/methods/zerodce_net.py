@@ -11,7 +11,6 @@ Weights are stored only as safetensors (never unpickled) with a JSON card beside
 from __future__ import annotations
 
 import hashlib
-import json
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +22,7 @@ from safetensors.torch import save_file
 from torch import nn
 
 from ..atomic import atomic_path, write_json_atomic
+from ..checkpoint import read_card
 from ..errors import CheckpointError
 
 VARIANTS = ("zerodce", "zerodce++")
@@ -217,17 +217,9 @@ def load_zerodce_weights(path: Path | str, variant: str) -> tuple[nn.Module, str
     except (SafetensorError, OSError, ValueError, RuntimeError) as exc:
         raise CheckpointError(f"{path}: unreadable or corrupt safetensors file ({exc})") from exc
     digest = hashlib.sha256(data).hexdigest()
-    card: dict[str, Any] = {}
-    card_file = path.with_suffix(".json")
-    if card_file.is_file():
-        try:
-            card = json.loads(card_file.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
-            raise CheckpointError(f"{card_file}: unreadable model card ({exc})") from exc
-        if card.get("sha256") and card["sha256"] != digest:
-            raise CheckpointError(f"{path}: sha256 {digest[:12]}... does not match its card {card_file.name}")
-        if card.get("variant") and card["variant"] != variant:
-            raise CheckpointError(f"{path}: holds {card['variant']} weights, not {variant}")
+    card = read_card(path, digest)
+    if card.get("variant") and card["variant"] != variant:
+        raise CheckpointError(f"{path}: holds {card['variant']} weights, not {variant}")
     net = build_net(variant)
     expected = net.state_dict()
     missing = sorted(set(expected) - set(state))
