@@ -46,9 +46,15 @@ def clamp_gamma(a: float) -> tuple[float, bool]:
 
 
 def network_input(frame: np.ndarray, size: int | None) -> np.ndarray:
-    """The copy of ``frame`` the network sees: ``size x size`` (area-averaged) or the frame itself."""
+    """The copy of ``frame`` the network sees: ``size x size`` (area-averaged) or the frame itself.
+
+    A large frame is first halved with Gaussian pyramids while it stays at least 4x the target (4x cheaper than
+    one area resize from full HD, and as smooth), then area-averaged to the target.
+    """
     if size is None or frame.shape[:2] == (size, size):
         return frame
+    while min(frame.shape[:2]) >= 4 * size:
+        frame = cv2.pyrDown(frame)
     return cv2.resize(frame, (size, size), interpolation=cv2.INTER_AREA)
 
 
