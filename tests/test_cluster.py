@@ -462,3 +462,28 @@ def test_task_checks_in_process(tmp_path: Path) -> None:
 
     with pytest.raises(ColonlightError, match="not a Dask scheduler address"):
         ClusterRunner("nonsense://here")
+
+
+def test_service_dispatches_jobs_to_the_cluster(cluster: LoopbackCluster, weights: Path, tmp_path: Path) -> None:
+    """`COLONLIGHT_CLUSTER`: the same API, the clip enhanced by a Dask worker, the same bytes as a local job."""
+    import httpx
+
+    from .service_server import ServiceServer
+
+    clip = make_clip(tmp_path / "p7.mp4", n_frames=50, fps=25, size=(160, 120))
+    results = {}
+    for label, extra in (("cluster", {"COLONLIGHT_CLUSTER": cluster.address}), ("local", {})):
+        env = {"COLONLIGHT_WEIGHTS": str(weights), "COLONLIGHT_WORKERS": "2", **extra}
+        with ServiceServer(tmp_path / f"svc-{label}", env) as srv, httpx.Client(base_url=srv.url, timeout=60) as client:
+            with open(clip, "rb") as fh:
+                r = client.post("/v1/jobs", files={"file": ("p7.mp4", fh, "video/mp4")}, data={"fps": "18"})
+            assert r.status_code == 202, r.text
+            deadline = time.monotonic() + 90
+            while (job := client.get(r.headers["location"]).json())["status"] not in ("succeeded", "failed"):
+                assert time.monotonic() < deadline, job
+                time.sleep(0.2)
+            assert job["status"] == "succeeded", job
+            gammas = client.get(job["links"]["gammas"]).json()
+            assert gammas["frame_count"] == 36 and gammas["model"]["name"] == "t"
+            results[label] = ([f["gamma"] for f in gammas["frames"]], client.get(job["links"]["video"]).content)
+    assert results["cluster"] == results["local"]
