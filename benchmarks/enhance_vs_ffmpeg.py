@@ -86,9 +86,9 @@ def ffmpeg_cmd(clip: Path, out: Path, fmt: str) -> list[str]:
             "-vf", f"fps=18,lutrgb=r='{curve}':g='{curve}':b='{curve}'", *quality, str(out / f"%06d.{fmt}")]
 
 
-def compare_formats(work: Path, clip: Path) -> list[list[object]]:
+def compare_formats(work: Path, clip: Path, formats: tuple[str, ...] = ("png", "jpg")) -> list[list[object]]:
     rows = []
-    for fmt in ("png", "jpg"):
+    for fmt in formats:
         ours, theirs = [], []
         for r in range(REPEATS):
             for who in ("ffmpeg", "colonlight") if r % 2 == 0 else ("colonlight", "ffmpeg"):

@@ -263,6 +263,17 @@ def _init_worker(threads: int) -> None:
     torch.set_num_threads(max(1, threads))
 
 
+def network_threads(spec: MethodSpec, workers: int) -> int:
+    """torch threads for a clip worker: one for the recurrent net on a small copy of the frame (a 3 ms step that
+    a second OpenMP thread barely speeds up while its spinning starves the decode and encode threads), else the
+    worker's share of the cores."""
+    cores = os.cpu_count() or 1
+    size = dict(spec.options).get("model_size")
+    if spec.name == "rnn" and str(size).lower() != "full":
+        return 1
+    return max(1, cores // max(1, workers))
+
+
 def _run_in_worker(job: ClipJob, spec: MethodSpec, opts: ClipOptions, overwrite: bool, events: Any) -> ClipOutcome:
     progress: ProgressFn | None = None
     if events is not None:
@@ -307,6 +318,7 @@ def run_batch(
 
         run_on_cluster(cluster, jobs, spec, opts, overwrite, done, progress)
     elif workers <= 1 or len(jobs) <= 1:
+        _init_worker(network_threads(spec, 1))
         for job in jobs:
             done(run_clip(job, spec, opts, overwrite, progress))
     else:
@@ -324,11 +336,10 @@ def _run_pool(
     done: Callable[[ClipOutcome], None],
 ) -> None:
     ctx = mp.get_context("spawn")  # never fork a process that holds torch threads
-    cores = os.cpu_count() or 1
     with ctx.Manager() as manager:
         events = manager.Queue() if progress else None
         with ProcessPoolExecutor(
-            max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(max(1, cores // workers),)
+            max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(network_threads(spec, workers),)
         ) as pool:
             futures: dict[Future[ClipOutcome], ClipJob] = {
                 pool.submit(_run_in_worker, job, spec, opts, overwrite, events): job for job in jobs
