@@ -30,6 +30,18 @@ WEIGHTS_FORMAT = "colonlight-zerodce"
 N_FEATURES = 32
 
 
+def _skip_forward(net: nn.Module, x: torch.Tensor) -> torch.Tensor:
+    """The seven-layer DCE-Net topology shared by both variants: ReLU after layers 1-6, skips by concatenation
+    (c5 <- [c3, c4], c6 <- [c2, c5], c7 <- [c1, c6]), tanh on the curve maps."""
+    x1 = F.relu(net.e_conv1(x))
+    x2 = F.relu(net.e_conv2(x1))
+    x3 = F.relu(net.e_conv3(x2))
+    x4 = F.relu(net.e_conv4(x3))
+    x5 = F.relu(net.e_conv5(torch.cat([x3, x4], 1)))
+    x6 = F.relu(net.e_conv6(torch.cat([x2, x5], 1)))
+    return torch.tanh(net.e_conv7(torch.cat([x1, x6], 1)))
+
+
 class DceNet(nn.Module):
     """DCE-Net: seven 3x3 convolutions with concatenation skips; 24 tanh maps = 8 RGB curve maps (79,416).
 
@@ -50,13 +62,7 @@ class DceNet(nn.Module):
         self.e_conv7 = nn.Conv2d(2 * f, 3 * self.n_maps, 3, 1, 1, bias=True)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x1 = F.relu(self.e_conv1(x))
-        x2 = F.relu(self.e_conv2(x1))
-        x3 = F.relu(self.e_conv3(x2))
-        x4 = F.relu(self.e_conv4(x3))
-        x5 = F.relu(self.e_conv5(torch.cat([x3, x4], 1)))
-        x6 = F.relu(self.e_conv6(torch.cat([x2, x5], 1)))
-        return torch.tanh(self.e_conv7(torch.cat([x1, x6], 1)))
+        return _skip_forward(self, x)
 
 
 class _DepthwiseSeparable(nn.Module):
@@ -92,13 +98,7 @@ class DcePlusPlusNet(nn.Module):
         self.e_conv7 = _DepthwiseSeparable(2 * f, 3)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x1 = F.relu(self.e_conv1(x))
-        x2 = F.relu(self.e_conv2(x1))
-        x3 = F.relu(self.e_conv3(x2))
-        x4 = F.relu(self.e_conv4(x3))
-        x5 = F.relu(self.e_conv5(torch.cat([x3, x4], 1)))
-        x6 = F.relu(self.e_conv6(torch.cat([x2, x5], 1)))
-        return torch.tanh(self.e_conv7(torch.cat([x1, x6], 1)))
+        return _skip_forward(self, x)
 
 
 def build_net(variant: str) -> DceNet | DcePlusPlusNet:
