@@ -24,7 +24,7 @@ from .atomic import write_json_atomic
 from .errors import ColonlightError
 from .frames import IMAGE_SUFFIXES, is_image_folder, list_image_frames
 from .methods import Method, create_method
-from .pipeline import ClipOptions, enhance_clip, is_complete
+from .pipeline import ClipOptions, complete_record, enhance_clip
 from .video import is_video, probe_video
 
 MANIFEST_FILE = "manifest.json"
@@ -174,11 +174,9 @@ def run_clip(
     t0 = time.perf_counter()
     try:
         method = _method_for(spec)
-        if not overwrite and is_complete(job.out_dir, method, opts):
-            import json
-
-            frames = json.loads((job.out_dir / "gammas.json").read_text(encoding="utf-8")).get("frame_count", 0)
-            return ClipOutcome(job.name, str(job.source), "done", frames=frames, skipped=True)
+        record = None if overwrite else complete_record(job.out_dir, method, opts)
+        if record is not None:
+            return ClipOutcome(job.name, str(job.source), "done", frames=record.get("frame_count", 0), skipped=True)
         if progress:
             progress("start", job.name, {"total": estimate_frames(job.source, opts.fps)})
         result = enhance_clip(

@@ -83,17 +83,20 @@ def settings_record(method: Method, opts: ClipOptions) -> dict[str, Any]:
     }
 
 
-def is_complete(out_dir: Path, method: Method, opts: ClipOptions) -> bool:
-    """True when ``out_dir`` holds a finished clip made with the same settings (so it can be skipped)."""
+def complete_record(out_dir: Path, method: Method, opts: ClipOptions) -> dict[str, Any] | None:
+    """The ``gammas.json`` of a finished clip in ``out_dir`` made with the same settings, else ``None``.
+
+    A clip whose record is returned can be skipped; the record says how many frames it has.
+    """
     try:
-        record = json.loads((out_dir / GAMMAS_FILE).read_text(encoding="utf-8"))
+        record: dict[str, Any] = json.loads((out_dir / GAMMAS_FILE).read_text(encoding="utf-8"))
     except (OSError, ValueError):
-        return False
+        return None
     if record.get("settings") != json.loads(json.dumps(settings_record(method, opts))):
-        return False
+        return None
     if opts.video and not (out_dir / VIDEO_FILE).is_file():
-        return False
-    return True
+        return None
+    return record
 
 
 def _prefetch(frames: Iterator[DecodedFrame], stop: threading.Event) -> Iterator[DecodedFrame]:
@@ -300,8 +303,8 @@ def iter_enhanced(
 __all__ = [
     "ClipOptions",
     "ClipResult",
+    "complete_record",
     "enhance_clip",
-    "is_complete",
     "iter_enhanced",
     "settings_record",
 ]
