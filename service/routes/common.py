@@ -1,11 +1,22 @@
-"""Helpers shared by the upload routes: form options, the job view."""
+"""Helpers shared by the upload routes: the checked upload, form options, the job view."""
 
 from __future__ import annotations
 
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from dataclasses import dataclass
+
+import anyio
+from fastapi import Request
 from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 
-from ..jobs import JobManager
+from colonlight.video import VideoInfo
+
+from ..errors import ApiError
+from ..jobs import Admission, JobManager
+from ..settings import Settings
+from ..uploads import Upload, receive_upload
 from ..schemas import JobLinks, JobOptions, JobStatus, iso
 from ..store import JobRecord
 
@@ -18,6 +29,39 @@ def parse_options(fields: dict[str, str]) -> JobOptions:
         raise RequestValidationError(
             [{"loc": ("body", *err["loc"]), "msg": err["msg"], "type": err["type"]} for err in exc.errors()]
         ) from None
+
+
+@dataclass(frozen=True)
+class CheckedUpload:
+    """An admitted upload, on disk, whose options and content have been checked."""
+
+    admission: Admission
+    upload: Upload
+    options: JobOptions
+    info: VideoInfo
+
+
+@asynccontextmanager
+async def checked_upload(request: Request, manager: JobManager, settings: Settings) -> AsyncIterator[CheckedUpload]:
+    """Admit (503), stream the upload to disk (413), validate the options (422), build the method, probe the
+    content (415); on leaving, release the admission (a no-op once a job owns it) and drop the upload file if it is
+    still there (a job moves it away)."""
+    admission = manager.admit()
+    upload: Upload | None = None
+    try:
+        upload = await receive_upload(request, manager.new_upload_path(), settings.max_upload_bytes)
+        options = parse_options(upload.fields)
+        await manager.check_method(manager.method_spec(options))
+        info = await manager.probe(upload)
+        yield CheckedUpload(admission, upload, options, info)
+    except ApiError as exc:
+        if exc.status == 413:
+            manager.metrics.inc("rejected", "too_large")
+        raise
+    finally:
+        admission.release()
+        if upload is not None and upload.path.exists():
+            await anyio.to_thread.run_sync(upload.discard)
 
 
 def job_view(rec: JobRecord, manager: JobManager) -> JobStatus:

@@ -4,14 +4,12 @@ from __future__ import annotations
 
 from typing import Any
 
-import anyio
 from fastapi import APIRouter, Request
 
 from ..deps import Authenticated, ManagerDep, SettingsDep
-from ..errors import ApiError, error_responses
+from ..errors import error_responses
 from ..schemas import EnhanceResult, upload_request_body
-from ..uploads import Upload, receive_upload
-from .common import parse_options
+from .common import checked_upload
 
 router = APIRouter(prefix="/v1", tags=["enhance"], dependencies=[Authenticated])
 
@@ -30,20 +28,5 @@ router = APIRouter(prefix="/v1", tags=["enhance"], dependencies=[Authenticated])
     responses=error_responses(400, 401, 413, 415, 422, 503),
 )
 async def enhance_now(request: Request, manager: ManagerDep, settings: SettingsDep) -> dict[str, Any]:
-    admission = manager.admit()
-    upload: Upload | None = None
-    try:
-        upload = await receive_upload(request, manager.new_upload_path(), settings.max_upload_bytes)
-        options = parse_options(upload.fields)
-        spec = manager.method_spec(options)
-        await manager.check_method(spec)
-        info = await manager.probe(upload)
-        return await manager.enhance_now(admission, upload, options, info)
-    except ApiError as exc:
-        if exc.status == 413:
-            manager.metrics.inc("rejected", "too_large")
-        raise
-    finally:
-        admission.release()
-        if upload is not None and upload.path.exists():
-            await anyio.to_thread.run_sync(upload.discard)
+    async with checked_upload(request, manager, settings) as c:
+        return await manager.enhance_now(c.admission, c.upload, c.options, c.info)

@@ -14,8 +14,7 @@ from ..errors import ApiError, error_responses
 from ..jobs import JOB_ID_PATTERN, JobManager
 from ..schemas import JobStatus, upload_request_body
 from ..store import JobRecord
-from ..uploads import Upload, receive_upload
-from .common import job_view, parse_options
+from .common import checked_upload, job_view
 
 router = APIRouter(prefix="/v1", tags=["jobs"], dependencies=[Authenticated])
 
@@ -57,23 +56,8 @@ def _finished(rec: JobRecord) -> None:
     },
 )
 async def submit_job(request: Request, response: Response, manager: ManagerDep, settings: SettingsDep) -> JobStatus:
-    admission = manager.admit()
-    upload: Upload | None = None
-    try:
-        upload = await receive_upload(request, manager.new_upload_path(), settings.max_upload_bytes)
-        options = parse_options(upload.fields)
-        spec = manager.method_spec(options)
-        await manager.check_method(spec)
-        await manager.probe(upload)
-        rec = await manager.create_job(admission, upload, options)
-    except ApiError as exc:
-        if exc.status == 413:
-            manager.metrics.inc("rejected", "too_large")
-        raise
-    finally:
-        admission.release()  # no-op once the job owns the place
-        if upload is not None and upload.path.exists():
-            await anyio.to_thread.run_sync(upload.discard)
+    async with checked_upload(request, manager, settings) as c:
+        rec = await manager.create_job(c.admission, c.upload, c.options)
     response.headers["Location"] = f"/v1/jobs/{rec.id}"
     return job_view(rec, manager)
 
