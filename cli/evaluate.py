@@ -1,0 +1,258 @@
+"""``colonlight evaluate``: run methods on clips (a user's, or the held-out synthetic benchmark) and report."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from colonlight.errors import ColonlightError
+
+from . import options
+from .display import console, error_line
+
+TRAINING_SEEDS = range(1000, 1100)  # colonlight train's synthetic clips
+GATE_SEEDS = range(700_000, 700_024)  # benchmarks/quality_gate.py
+
+
+def _method_names(text: str) -> list[str]:
+    from colonlight.methods import available_methods
+
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    known = available_methods()
+    bad = [n for n in names if n not in known]
+    if bad or not names:
+        raise typer.BadParameter(
+            f"unknown method(s) {', '.join(bad) or '(none given)'}; available: {', '.join(known)}",
+            param_hint="--methods",
+        )
+    return list(dict.fromkeys(names))
+
+
+class _Display:
+    """Progress over clips (and the methods of the running clip); one line per finished or failed clip."""
+
+    def __init__(self, n_clips: int, n_methods: int, quiet: bool) -> None:
+        self.quiet = quiet
+        self.n_methods = n_methods
+        self.started = time.perf_counter()
+        self.clip_started = self.started
+        self.progress: Progress | None = None
+        if not quiet:
+            self.progress = Progress(
+                TextColumn("{task.description}"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TimeElapsedColumn(),
+                console=console,
+            )
+            self.clips = self.progress.add_task("[bold]clips", total=n_clips)
+            self.methods = self.progress.add_task("  methods", total=n_methods, visible=False)
+
+    def __enter__(self) -> _Display:  # noqa: PYI034 - a private class, never subclassed
+        if self.progress:
+            self.progress.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.progress:
+            self.progress.stop()
+
+    def line(self, text: str) -> None:
+        (self.progress.console if self.progress else console).print(text, soft_wrap=True)
+
+    def event(self, event: str, data: dict[str, Any]) -> None:
+        if event == "skipped":
+            self.n_methods -= 1
+            self.line(f"[yellow]skipped[/] method {data['method']}: {data['error']}")
+        elif event == "clip":
+            self.clip_started = time.perf_counter()
+            if self.progress:
+                self.progress.reset(self.methods, total=self.n_methods, visible=True)
+                self.progress.update(self.methods, description=f"  {data['clip']}")
+        elif event == "method":
+            if data.get("error"):
+                self.line(f"[red]failed[/]  {data['clip']} / {data['method']}: {data['error']}")
+            if self.progress:
+                self.progress.advance(self.methods)
+                self.progress.update(self.methods, description=f"  {data['clip']}: {data['method']} done")
+        elif event == "failed":
+            self.line(f"[red]failed[/]  {data['error']}")
+            if self.progress:
+                self.progress.advance(self.clips)
+        elif event == "done":
+            seconds = time.perf_counter() - self.clip_started
+            self.line(f"[green]done[/]    {data['clip']} in {seconds:.1f} s")
+            if self.progress:
+                self.progress.advance(self.clips)
+                self.progress.update(self.methods, visible=False)
+
+
+def _summary_table(rows: list[dict[str, Any]]) -> Table:
+    from colonlight.evaluation.report import fmt, fmt_pair
+
+    table = Table(title="colonlight evaluate", header_style="bold")
+    for col in ("method", "clips", "flicker in -> out", "MC-SSIM out", "dark/bright % out", "tracker ok",
+                "COLMAP reg.", "ATE rmse mm", "ms/frame"):  # fmt: skip
+        table.add_column(col, justify="left" if col == "method" else "right")
+    for r in rows:
+        table.add_row(
+            r["method"],
+            str(r["clips"]),
+            fmt_pair(r["flicker_in"], r["flicker_out"]),
+            fmt(r["ssim_out"], ".3f"),
+            f"{fmt(r['dark_out'], '.1f', 100)} / {fmt(r['bright_out'], '.2f', 100)}",
+            f"{r['track_success']}/{r['tracked']}" if r["tracked"] else "n/a",
+            fmt(r["registered"], ".0%") if r["colmap_clips"] else "n/a",
+            fmt(r["ate_rmse_m"], ".2f", 1000),
+            fmt(r["ms_per_frame"], ".1f"),
+        )
+    return table
+
+
+def evaluate(
+    ctx: typer.Context,
+    inputs: Annotated[
+        list[Path] | None,
+        typer.Argument(
+            help="Video files and/or folders (walked recursively; synthetic clip folders are found by synth.json)."
+        ),
+    ] = None,
+    output: Annotated[Path, typer.Option("--output", "-o", help="Report folder.")] = Path("colonlight-eval"),
+    methods: Annotated[
+        str,
+        typer.Option(
+            "--methods",
+            "-m",
+            help="Comma-separated methods; rnn is ours (default model). Methods without weights are skipped.",
+        ),
+    ] = "none,he,clahe,deflicker,zerodce,zerodce++,rnn",
+    authors_checkpoint: Annotated[
+        Path | None,
+        typer.Option(
+            "--authors-checkpoint", help="The authors' released .pth: adds the method 'rnn (authors)'."
+        ),
+    ] = None,
+    synthetic: Annotated[
+        int,
+        typer.Option(
+            "--synthetic",
+            min=0,
+            help="Also evaluate N held-out synthetic clips, rendered into OUTPUT/clips/ (reused if complete).",
+        ),
+    ] = 0,
+    seed0: Annotated[
+        int, typer.Option("--seed0", help="Seed of the first synthetic clip (clip i: seed0 + i).")
+    ] = 800_000,  # colonlight.evaluation.clips.BENCHMARK_SEED0 (not imported: keeps `colonlight --help` light)
+    frames: Annotated[int, typer.Option("--frames", min=2, help="Frames per synthetic clip.")] = 72,
+    size: Annotated[
+        int, typer.Option("--size", min=32, help="Side of the synthetic frames in pixels.")
+    ] = 256,
+    colmap: Annotated[
+        bool, typer.Option("--colmap/--no-colmap", help="Run COLMAP (pycolmap) on every method's frames.")
+    ] = True,
+    tracker: Annotated[
+        bool,
+        typer.Option("--tracker/--no-tracker", help="Run the photometric tracker (clips with known depth)."),
+    ] = True,
+    fps: Annotated[
+        float,
+        typer.Option(
+            "--fps", min=0.0, help="Extraction rate of videos (FFmpeg fps-filter choice); 0 keeps all."
+        ),
+    ] = 18.0,
+    max_size: Annotated[
+        int,
+        typer.Option(
+            "--max-size", min=0, help="Working size: long side shrunk to at most this (0: full size)."
+        ),
+    ] = 256,
+    max_frames: Annotated[
+        int, typer.Option("--max-frames", min=0, help="Evaluate at most this many frames per clip (0: all).")
+    ] = 0,
+    device: str = options.Device,
+    threads: Annotated[
+        int,
+        typer.Option("--threads", min=1, help="Torch/OpenCV threads while evaluating (cost measured alike)."),
+    ] = 1,
+    workers: Annotated[
+        int, typer.Option("--workers", "-j", min=1, help="Processes rendering synthetic clips.")
+    ] = 1,
+    quiet: bool = options.Quiet,
+    debug: bool = options.Debug,
+) -> None:
+    """Measure lighting consistency, exposure, tracking, COLMAP and cost of each method; write OUTPUT/report.html,
+    results.json, table.md, table.csv and clips.csv."""  # fmt: skip
+    from colonlight.evaluation.clips import find_clips, make_benchmark
+    from colonlight.evaluation.report import write_report
+    from colonlight.evaluation.runner import evaluate_clips, method_list, require_extras, summarize
+
+    names = _method_names(methods)
+    try:
+        require_extras(colmap)
+    except ColonlightError as exc:
+        error_line(str(exc))
+        raise typer.Exit(2) from None
+    if not inputs and not synthetic:
+        raise typer.BadParameter("give clips to evaluate, or --synthetic N", param_hint="INPUTS")
+    specs = method_list(names, authors_checkpoint, device)
+    if authors_checkpoint is not None and not authors_checkpoint.is_file():
+        console.print(f"[yellow]note[/]: the authors' checkpoint {authors_checkpoint} is not a file")
+
+    refs = find_clips(inputs or [])
+    if synthetic:
+        overlap = [r for r in (TRAINING_SEEDS, GATE_SEEDS) if seed0 < r.stop and r.start < seed0 + synthetic]
+        if overlap:
+            console.print(f"[yellow]warning[/]: seeds {seed0}..{seed0 + synthetic - 1} overlap seeds used for "
+                          "training or the quality gate; the benchmark should use unseen seeds (e.g. 800000+)")  # fmt: skip
+        clip_dir = output / "clips"
+        done = [0]
+
+        def rendered(folder: Path, new: bool) -> None:
+            done[0] += 1
+            if new:
+                console.print(f"[dim]rendered[/] {folder} ({done[0]}/{synthetic})", soft_wrap=True)
+
+        if not quiet:
+            console.print(f"synthetic benchmark: {synthetic} held-out clips x {frames} frames ({size}x{size}) "
+                          f"in {clip_dir}")  # fmt: skip
+        refs += make_benchmark(clip_dir, synthetic, seed0, frames, size, workers=workers, on_clip=rendered)
+    if not refs:
+        error_line("no clips found in " + ", ".join(str(p) for p in inputs or []))
+        raise typer.Exit(1)
+
+    with _Display(len(refs), len(specs), quiet) as display:
+        try:
+            result = evaluate_clips(
+                refs, specs, colmap=colmap, tracker=tracker, max_size=max_size or None, fps=fps,
+                max_frames=max_frames or None, threads=threads, progress=display.event,
+            )  # fmt: skip
+        except ColonlightError as exc:
+            if debug:
+                raise
+            error_line(str(exc))
+            raise typer.Exit(1) from None
+    if not result.methods:
+        error_line(
+            "no method could be run: " + "; ".join(f"{k}: {v}" for k, v in result.skipped_methods.items())
+        )
+        raise typer.Exit(1)
+    if debug:
+        for c in result.clips:
+            for r in c.results.values():
+                if r.detail:
+                    console.print(r.detail)
+    paths = write_report(result, output, command=options.invocation(ctx))
+    console.print(_summary_table(summarize(result)))
+    console.print(f"report: {paths['html']}")
+    console.print(f"tables: {paths['markdown']}, {paths['csv']}; everything: {paths['json']}")
+    if result.failed:
+        raise typer.Exit(1)
+
+
+def register(app: typer.Typer) -> None:
+    app.command("evaluate")(evaluate)

@@ -1,0 +1,595 @@
+"""Run methods on clips and measure them: lighting consistency, exposure, tracking, COLMAP, cost.
+
+Per clip, what depends only on the input is computed once (content masks, the correspondences used for the
+motion-compensated SSIM, the input's scores); then every method streams the clip once, its enhanced frames
+are kept in memory (clips are short, at working size) and scored. One clip is in memory at a time.
+
+A method that cannot be built (weights not installed, the authors' checkpoint absent) is skipped with its
+one-line reason; a clip that cannot be loaded is recorded as failed with its one-line reason; the rest goes on.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ..errors import ColonlightError
+from ..methods import Method, available_methods, create_method
+from ..metrics import clip_lighting, content_masks, mean_luma
+from .clips import DEFAULT_FPS, DEFAULT_MAX_SIZE, ClipRef, EvalClip
+from .colmap import APE_STATS, ColmapSettings, run_colmap
+from .consistency import (
+    Correspondence,
+    depth_correspondences,
+    exposure_fractions,
+    flow_correspondences,
+    motion_compensated_ssim,
+)
+
+#: The benchmark's methods, in table order.
+DEFAULT_METHODS = ("none", "he", "clahe", "deflicker", "zerodce", "zerodce++", "rnn")
+STRIP_FRAMES = 6
+STRIP_HEIGHT = 96
+
+Progress = Callable[[str, dict[str, Any]], None]
+
+
+@dataclass(frozen=True)
+class EvalMethod:
+    """A method to evaluate: a table label, a registry name and its options."""
+
+    label: str
+    name: str
+    options: tuple[tuple[str, Any], ...] = ()
+
+    @staticmethod
+    def of(label: str, name: str, **options: Any) -> EvalMethod:
+        return EvalMethod(label, name, tuple(sorted((k, v) for k, v in options.items() if v is not None)))
+
+    def build(self) -> Method:
+        return create_method(self.name, **dict(self.options))
+
+
+def method_list(
+    names: Sequence[str], authors_checkpoint: Path | str | None = None, device: str = "cpu"
+) -> list[EvalMethod]:
+    """Methods by registry name (``rnn`` is ours, labelled ``rnn (ours)``); with ``authors_checkpoint``, the
+    authors' released model is added after ours as ``rnn (authors)``. Unknown names raise ``ValueError``."""
+    known = available_methods()
+    out: list[EvalMethod] = []
+    for name in names:
+        if name not in known:
+            raise ValueError(f"unknown method {name!r}; choose from {', '.join(known)}")
+        if name in ("rnn", "zerodce", "zerodce++"):
+            out.append(EvalMethod.of("rnn (ours)" if name == "rnn" else name, name, device=device))
+        else:
+            out.append(EvalMethod.of(name, name))
+        if name == "rnn" and authors_checkpoint is not None:
+            out.append(EvalMethod.of("rnn (authors)", "rnn", device=device, weights=str(authors_checkpoint)))
+    if authors_checkpoint is not None and "rnn" not in names:
+        out.append(EvalMethod.of("rnn (authors)", "rnn", device=device, weights=str(authors_checkpoint)))
+    return out
+
+
+def missing_extras(colmap: bool = True) -> list[str]:
+    """Distributions of the ``eval`` extra this evaluation needs that are not installed."""
+    import importlib.util
+
+    needed = {"skimage": "scikit-image", "matplotlib": "matplotlib"}
+    if colmap:
+        needed.update(pycolmap="pycolmap", evo="evo")
+    return [dist for module, dist in needed.items() if importlib.util.find_spec(module) is None]
+
+
+def require_extras(colmap: bool = True) -> None:
+    """:class:`ColonlightError` (one line) naming what to install when part of the ``eval`` extra is missing."""
+    missing = missing_extras(colmap)
+    if missing:
+        raise ColonlightError(
+            f"colonlight evaluate needs {', '.join(missing)}: pip install 'colonlight[eval]'"
+            + (" (or run with --no-colmap)" if {"pycolmap", "evo"} & set(missing) else "")
+        )
+
+
+# ------------------------------------------------------------------------------------------------- records
+
+
+@dataclass
+class MethodClipResult:
+    """One method on one clip. Fractions in [0, 1]; luminance in [0, 1]; time in milliseconds."""
+
+    clip: str
+    method: str
+    frames: int = 0
+    ms_per_frame: float = float("nan")
+    cpu_ms_per_frame: float = float("nan")
+    flicker_in: float = float("nan")
+    flicker_out: float = float("nan")
+    mean_luma_in: float = float("nan")
+    mean_luma_out: float = float("nan")
+    psnr_in: float | None = None
+    psnr_out: float | None = None
+    ssim_in: float = float("nan")
+    ssim_out: float = float("nan")
+    dark_in: float = float("nan")
+    dark_out: float = float("nan")
+    bright_in: float = float("nan")
+    bright_out: float = float("nan")
+    luma_out: list[float] = field(default_factory=list)
+    ssim_series: list[float] = field(default_factory=list)
+    gammas: list[float | None] | None = None
+    tracking: dict[str, Any] | None = None
+    colmap: dict[str, Any] | None = None
+    error: str | None = None
+    detail: str | None = None  # traceback of an unexpected error
+
+    @property
+    def flicker_reduction(self) -> float:
+        return 1.0 - self.flicker_out / self.flicker_in if self.flicker_in > 0 else float("nan")
+
+
+@dataclass
+class ClipRecord:
+    """A clip's description, its input series and one result per method."""
+
+    name: str
+    info: dict[str, Any]
+    correspondence: str  # "depth+pose" | "optical flow"
+    valid_fraction: float  # mean fraction of pixels with a correspondence
+    luma_in: list[float]
+    ssim_in_series: list[float]
+    results: dict[str, MethodClipResult] = field(default_factory=dict)
+
+
+@dataclass
+class EvaluationResult:
+    """Everything an evaluation found; :func:`summarize` turns it into one row per method."""
+
+    methods: list[dict[str, Any]] = field(default_factory=list)  # label, name, options, parameters, model
+    skipped_methods: dict[str, str] = field(default_factory=dict)  # label -> reason
+    clips: list[ClipRecord] = field(default_factory=list)
+    failures: list[dict[str, str]] = field(default_factory=list)  # clip, source, error
+    settings: dict[str, Any] = field(default_factory=dict)
+    # clip -> label ("input" too) -> thumbnails of the strip frames
+    strips: dict[str, dict[str, list[np.ndarray]]] = field(default_factory=dict)
+    strip_frames: dict[str, list[int]] = field(default_factory=dict)
+    seconds: float = 0.0
+
+    @property
+    def labels(self) -> list[str]:
+        return [m["label"] for m in self.methods]
+
+    @property
+    def failed(self) -> bool:
+        """Some clip could not be loaded, or some method failed on a clip."""
+        return bool(self.failures) or any(r.error for c in self.clips for r in c.results.values())
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (thumbnails left out)."""
+        return {
+            "methods": self.methods,
+            "skipped_methods": self.skipped_methods,
+            "settings": self.settings,
+            "summary": summarize(self),
+            "clips": [
+                {
+                    **{k: v for k, v in asdict(c).items() if k != "results"},
+                    "results": {label: _json_result(r) for label, r in c.results.items()},
+                }
+                for c in self.clips
+            ],
+            "failures": self.failures,
+            "seconds": self.seconds,
+        }
+
+
+def _json_result(r: MethodClipResult) -> dict[str, Any]:
+    d = asdict(r)
+    d.pop("detail")
+    d["flicker_reduction"] = r.flicker_reduction
+    return d
+
+
+# ----------------------------------------------------------------------------------------------- scoring
+
+
+def _correspondences(clip: EvalClip) -> tuple[str, list[Correspondence]]:
+    if clip.synthetic:
+        assert clip.depths is not None and clip.poses is not None and clip.K is not None
+        return "depth+pose", depth_correspondences(clip.depths, clip.poses, clip.K)
+    return "optical flow", flow_correspondences(clip.frames)
+
+
+def _nanmean(values: Iterable[float | None]) -> float:
+    v = np.array([x for x in values if x is not None], dtype=np.float64)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if v.size else float("nan")
+
+
+def _finite(values: np.ndarray) -> np.ndarray:
+    v = np.asarray(values, dtype=np.float64)
+    return v[np.isfinite(v)]
+
+
+def _nanmedian(values: Iterable[float | None]) -> float | None:
+    v = np.array([x for x in values if x is not None], dtype=np.float64)
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if v.size else None
+
+
+def _track(clip: EvalClip, frames: list[np.ndarray], settings: Any) -> dict[str, Any]:
+    """Track the enhanced frames with known depth; per-clip pose errors are medians over frames 1.. (a diverged
+    track's errors are astronomically large, so a mean would say nothing), maxima flag the worst frame."""
+    if not clip.synthetic:
+        return {"applicable": False, "reason": "no depth: tracking needs a synthetic clip's known depth"}
+    from .tracker import TrackerSettings, track_clip
+
+    assert clip.depths is not None and clip.K is not None
+    t0 = time.perf_counter()
+    with np.errstate(all="ignore"):  # a diverging track overflows; that is a result (failure), not a warning
+        res = track_clip(frames, clip.depths, clip.K, clip.poses, settings or TrackerSettings())
+    out: dict[str, Any] = {
+        "applicable": True,
+        "success": bool(res.success),
+        "failed_at": res.failed_at,
+        "failure_reason": res.failure_reason,
+        "seconds": time.perf_counter() - t0,
+        "converged_fraction": float(np.mean(res.converged)),
+        "residual_median": _nanmedian(res.residual[1:]),
+    }
+    te, re = res.translation_error_m, res.rotation_error_deg
+    if te is not None and re is not None and len(te) > 1:
+        te1, re1 = (np.nan_to_num(np.asarray(x[1:], np.float64), nan=np.inf) for x in (te, re))
+        held = slice(
+            0, (res.failed_at - 1) if res.failed_at is not None else len(te1)
+        )  # frames before failure
+        out.update(
+            translation_error_m_mean_tracked=float(te1[held].mean()) if te1[held].size else None,
+            rotation_error_deg_mean_tracked=float(re1[held].mean()) if re1[held].size else None,
+            translation_error_m_median=float(np.median(te1)),
+            rotation_error_deg_median=float(np.median(re1)),
+            translation_error_m_max=float(np.max(te1)),
+            rotation_error_deg_max=float(np.max(re1)),
+            translation_error_m=[float(x) for x in te],
+            rotation_error_deg=[float(x) for x in re],
+        )
+    if res.drift_translation_m is not None:
+        out["drift_translation_m_final"] = float(res.drift_translation_m[-1])
+    return out
+
+
+def _strip_indices(n: int, k: int = STRIP_FRAMES) -> list[int]:
+    return sorted({round(x) for x in np.linspace(0, n - 1, min(k, n))})
+
+
+def _thumb(frame: np.ndarray) -> np.ndarray:
+    h, w = frame.shape[:2]
+    if h <= STRIP_HEIGHT:
+        return frame
+    return cv2.resize(
+        frame, (max(1, round(w * STRIP_HEIGHT / h)), STRIP_HEIGHT), interpolation=cv2.INTER_AREA
+    )
+
+
+def _warm_up(method: Method, frames: Sequence[np.ndarray]) -> None:
+    """Run a throwaway stream on a few frames so one-off costs (lazy imports, first torch calls, allocator
+    growth) do not land in the first clip's timing."""
+    stream = method.stream()
+    for f in frames[:3]:
+        stream.push(f)
+    stream.flush()
+
+
+def _run_method(
+    method: Method, frames: list[np.ndarray]
+) -> tuple[list[np.ndarray], list[float | None], float, float]:
+    """Enhanced frames, per-frame gammas, and wall and CPU milliseconds per frame (the method alone, no I/O).
+
+    CPU time (this process, all its threads) is kept beside wall time because on a shared machine wall time
+    also counts other jobs' load."""
+    out: list[np.ndarray] = []
+    gammas: list[float | None] = []
+    stream = method.stream()
+    c0, t0 = time.process_time(), time.perf_counter()
+    for f in frames:
+        for r in stream.push(f):
+            out.append(r.frame)
+            gammas.append(r.gamma)
+    for r in stream.flush():
+        out.append(r.frame)
+        gammas.append(r.gamma)
+    n = max(1, len(frames))
+    ms, cpu_ms = 1000.0 * (time.perf_counter() - t0) / n, 1000.0 * (time.process_time() - c0) / n
+    if len(out) != len(frames):
+        raise RuntimeError(f"method {method.name} returned {len(out)} frames for {len(frames)}")
+    return out, gammas, ms, cpu_ms
+
+
+def evaluate_clip(
+    clip: EvalClip,
+    methods: Sequence[tuple[EvalMethod, Method]],
+    *,
+    colmap: bool = True,
+    tracker: bool = True,
+    colmap_settings: ColmapSettings | None = None,
+    tracker_settings: Any = None,
+    keep_strip: bool = False,
+    progress: Progress | None = None,
+) -> tuple[ClipRecord, dict[str, list[np.ndarray]]]:
+    """Score every method on one loaded clip; returns its record and (if ``keep_strip``) frame thumbnails."""
+    colmap_settings = colmap_settings or ColmapSettings()
+    masks = content_masks(clip.frames)
+    kind, corrs = _correspondences(clip)
+    lum_in = mean_luma(clip.frames, masks)
+    ssim_in = motion_compensated_ssim(clip.frames, corrs, masks)
+    dark_in, bright_in = exposure_fractions(clip.frames, masks)
+    record = ClipRecord(
+        name=clip.name,
+        info=clip.describe(),
+        correspondence=kind,
+        valid_fraction=float(np.mean([c.valid.mean() for c in corrs])) if corrs else 0.0,
+        luma_in=[float(x) for x in lum_in],
+        ssim_in_series=[float(x) for x in ssim_in],
+    )
+    idx = _strip_indices(len(clip.frames))
+    strips: dict[str, list[np.ndarray]] = (
+        {"input": [_thumb(clip.frames[i]) for i in idx]} if keep_strip else {}
+    )
+    for spec, method in methods:
+        r = MethodClipResult(clip=clip.name, method=spec.label, frames=len(clip.frames))
+        try:
+            out, gammas, r.ms_per_frame, r.cpu_ms_per_frame = _run_method(method, clip.frames)
+            light = clip_lighting(clip.frames, out, clip.clean)
+            r.flicker_in, r.flicker_out = light.flicker_in, light.flicker_out
+            r.mean_luma_in, r.mean_luma_out = light.mean_luma_in, light.mean_luma_out
+            r.psnr_in, r.psnr_out = light.psnr_in, light.psnr_out
+            r.luma_out = [float(x) for x in mean_luma(out, masks)]
+            r.gammas = gammas if any(g is not None for g in gammas) else None
+            series = motion_compensated_ssim(out, corrs, masks)
+            r.ssim_series = [float(x) for x in series]
+            r.ssim_in, r.ssim_out = _nanmean(ssim_in), _nanmean(series)
+            r.dark_in, r.bright_in = dark_in, bright_in
+            r.dark_out, r.bright_out = exposure_fractions(out, masks)
+            if tracker:
+                r.tracking = _track(clip, out, tracker_settings)
+            if colmap:
+                cm = run_colmap(out, clip.K, clip.poses, clip.fps, colmap_settings)
+                r.colmap = cm.to_dict()
+            if keep_strip and spec.name != "none":  # the input's row already shows it
+                strips[spec.label] = [_thumb(out[i]) for i in idx]
+        except ColonlightError as exc:
+            r.error = str(exc)
+        except Exception as exc:  # noqa: BLE001 - one method's bug must not lose the other results
+            r.error = f"{spec.label} failed: {type(exc).__name__}: {exc}".splitlines()[0]
+            r.detail = traceback.format_exc()
+        record.results[spec.label] = r
+        if progress:
+            progress("method", {"clip": clip.name, "method": spec.label, "error": r.error})
+    return record, strips
+
+
+def build_methods(
+    methods: Sequence[EvalMethod],
+) -> tuple[list[tuple[EvalMethod, Method]], dict[str, str], list[dict[str, Any]]]:
+    """Build each method once: ``(built, skipped label -> one-line reason, descriptions of the built)``."""
+    built, skipped, described = [], {}, []
+    for spec in methods:
+        try:
+            m = spec.build()
+        except (ColonlightError, ValueError, OSError) as exc:
+            skipped[spec.label] = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            continue
+        built.append((spec, m))
+        described.append(
+            {
+                "label": spec.label,
+                "name": spec.name,
+                "options": dict(spec.options),
+                "parameters": m.parameters(),
+                "model": m.model_info(),
+            }
+        )
+    return built, skipped, described
+
+
+def evaluate_clips(
+    clips: Iterable[ClipRef | EvalClip],
+    methods: Sequence[EvalMethod],
+    *,
+    colmap: bool = True,
+    tracker: bool = True,
+    max_size: int | None = DEFAULT_MAX_SIZE,
+    fps: float = DEFAULT_FPS,
+    max_frames: int | None = None,
+    colmap_settings: ColmapSettings | None = None,
+    tracker_settings: Any = None,
+    strips: int = 3,
+    threads: int | None = 1,
+    progress: Progress | None = None,
+) -> EvaluationResult:
+    """Evaluate ``methods`` on ``clips`` (loaded one at a time); see the module docstring.
+
+    ``strips``: how many clips keep before/after thumbnails for the report. ``tracker_settings``: a
+    :class:`colonlight.evaluation.tracker.TrackerSettings` (default thresholds when ``None``). ``threads``:
+    torch and OpenCV threads while evaluating (restored afterwards; ``None`` leaves them). One by default, so
+    that every method's cost is measured alike and OpenMP spinning on a busy machine does not inflate it
+    (the 64-px network took 270 ms/frame with 2 threads beside other jobs, 12 ms with one).
+    """
+    with _threads(threads):
+        return _evaluate_clips(
+            clips, methods, colmap=colmap, tracker=tracker, max_size=max_size, fps=fps, max_frames=max_frames,
+            colmap_settings=colmap_settings, tracker_settings=tracker_settings, strips=strips, threads=threads,
+            progress=progress,
+        )  # fmt: skip
+
+
+@contextmanager
+def _threads(n: int | None) -> Iterator[None]:
+    import torch
+
+    if n is None:
+        yield
+        return
+    before = torch.get_num_threads(), cv2.getNumThreads()
+    torch.set_num_threads(n)
+    cv2.setNumThreads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before[0])
+        cv2.setNumThreads(before[1])
+
+
+def _evaluate_clips(
+    clips: Iterable[ClipRef | EvalClip],
+    methods: Sequence[EvalMethod],
+    *,
+    colmap: bool,
+    tracker: bool,
+    max_size: int | None,
+    fps: float,
+    max_frames: int | None,
+    colmap_settings: ColmapSettings | None,
+    tracker_settings: Any,
+    strips: int,
+    threads: int | None,
+    progress: Progress | None,
+) -> EvaluationResult:
+    t0 = time.perf_counter()
+    colmap_settings = colmap_settings or ColmapSettings()
+    built, skipped, described = build_methods(methods)
+    if tracker and tracker_settings is None:
+        from .tracker import TrackerSettings
+
+        tracker_settings = TrackerSettings()
+    result = EvaluationResult(methods=described, skipped_methods=skipped)
+    result.settings = {
+        "max_size": max_size,
+        "fps": fps,
+        "max_frames": max_frames,
+        "threads": threads,
+        "colmap": asdict(colmap_settings) if colmap else None,
+        "tracker": asdict(tracker_settings) if tracker and tracker_settings is not None else None,
+        "dark_threshold": 0.1,
+        "bright_threshold": 0.95,
+    }
+    for label, reason in skipped.items():
+        if progress:
+            progress("skipped", {"method": label, "error": reason})
+    warmed = False
+    for item in clips:
+        name = item.name
+        if progress:
+            progress("clip", {"clip": name})
+        try:
+            clip = item.load(max_size, fps, max_frames) if isinstance(item, ClipRef) else item
+        except ColonlightError as exc:
+            source = str(item.path) if isinstance(item, ClipRef) else item.source
+            result.failures.append({"clip": name, "source": source, "error": str(exc)})
+            if progress:
+                progress("failed", {"clip": name, "error": str(exc)})
+            continue
+        if not warmed:
+            for _, m in built:
+                _warm_up(m, clip.frames)
+            warmed = True
+        keep = len(result.strips) < strips
+        record, thumbs = evaluate_clip(
+            clip,
+            built,
+            colmap=colmap,
+            tracker=tracker,
+            colmap_settings=colmap_settings,
+            tracker_settings=tracker_settings,
+            keep_strip=keep,
+            progress=progress,
+        )
+        result.clips.append(record)
+        if keep:
+            result.strips[clip.name] = thumbs
+            result.strip_frames[clip.name] = _strip_indices(len(clip.frames))
+        if progress:
+            progress("done", {"clip": name, "record": record})
+    result.seconds = time.perf_counter() - t0
+    return result
+
+
+# ----------------------------------------------------------------------------------------------- summary
+
+
+def summarize(result: EvaluationResult) -> list[dict[str, Any]]:
+    """One row per evaluated method: means over the clips it ran on (see the report for definitions).
+
+    Tracking: a clip counts when tracking applied (known depth); success rate = successful / tracked; pose
+    errors are the median over tracked clips of each clip's median frame error (robust to diverged tracks), and
+    the mean over clips of each clip's mean error over the frames before its first failure. COLMAP:
+    ``registered`` is the mean over clips of the fraction of frames registered; ATE statistics are means over
+    the clips where an ATE exists (at least 3 registered frames), in metres.
+    """
+    rows = []
+    for label in result.labels:
+        rs = [c.results[label] for c in result.clips if label in c.results and not c.results[label].error]
+        frames = sum(r.frames for r in rs)
+        tracked = [r.tracking for r in rs if r.tracking and r.tracking.get("applicable")]
+        cms = [r.colmap for r in rs if r.colmap is not None]
+        ates = [c["ate"] for c in cms if c.get("ate")]
+        row: dict[str, Any] = {
+            "method": label,
+            "clips": len(rs),
+            "frames": frames,
+            "ms_per_frame": sum(r.ms_per_frame * r.frames for r in rs) / frames if frames else float("nan"),
+            "cpu_ms_per_frame": sum(r.cpu_ms_per_frame * r.frames for r in rs) / frames
+            if frames
+            else float("nan"),
+            "flicker_in": _nanmean(r.flicker_in for r in rs),
+            "flicker_out": _nanmean(r.flicker_out for r in rs),
+            "flicker_reduction": _nanmean(r.flicker_reduction for r in rs),
+            "ssim_in": _nanmean(r.ssim_in for r in rs),
+            "ssim_out": _nanmean(r.ssim_out for r in rs),
+            "dark_in": _nanmean(r.dark_in for r in rs),
+            "dark_out": _nanmean(r.dark_out for r in rs),
+            "bright_in": _nanmean(r.bright_in for r in rs),
+            "bright_out": _nanmean(r.bright_out for r in rs),
+            "psnr_in": _nanmean(r.psnr_in for r in rs),
+            "psnr_out": _nanmean(r.psnr_out for r in rs),
+            "tracked": len(tracked),
+            "track_success": sum(1 for t in tracked if t["success"]),
+            "track_success_rate": (sum(1 for t in tracked if t["success"]) / len(tracked))
+            if tracked
+            else None,
+            "track_te_m": _nanmedian(t.get("translation_error_m_median") for t in tracked),
+            "track_re_deg": _nanmedian(t.get("rotation_error_deg_median") for t in tracked),
+            "track_te_mean_tracked_m": _nanmean(t.get("translation_error_m_mean_tracked") for t in tracked),
+            "track_re_mean_tracked_deg": _nanmean(t.get("rotation_error_deg_mean_tracked") for t in tracked),
+            "colmap_clips": len(cms),
+            "registered": _nanmean(c["fraction"] for c in cms) if cms else None,
+            "ate_clips": len(ates),
+        }
+        for k in APE_STATS:
+            row[f"ate_{k}_m"] = _nanmean(a[k] for a in ates) if ates else None
+        rows.append(row)
+    return rows
+
+
+__all__ = [
+    "DEFAULT_METHODS",
+    "ClipRecord",
+    "EvalMethod",
+    "EvaluationResult",
+    "MethodClipResult",
+    "build_methods",
+    "evaluate_clip",
+    "evaluate_clips",
+    "method_list",
+    "missing_extras",
+    "require_extras",
+    "summarize",
+]
