@@ -1,4 +1,4 @@
-"""Run the benchmarks: `python -m benchmarks [input_size] [enhance] [service]` (default: all)."""
+"""Run the benchmarks: `python -m benchmarks [input_size] [enhance] [service] [quality_gate] [objective_landscape]` (default: all)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ BENCHMARKS = {
     "enhance": "benchmarks.enhance_vs_ffmpeg",
     "service": "benchmarks.service_load",
     "quality_gate": "benchmarks.quality_gate",
+    "objective_landscape": "benchmarks.objective_landscape",
 }
 
 

@@ -30,6 +30,7 @@ from colonlight.pipeline import iter_enhanced
 from .common import AUTHORS_CKPT, markdown_table
 
 N_CLIPS, N_FRAMES, SIZE, SEED0 = 24, 72, 256, 700_000
+ORACLE = "clean"  # not a method: the generator's clean frames scored as if a method had produced them
 
 
 def clip_settings(i: int) -> dict[str, object]:
@@ -91,14 +92,20 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--json", type=Path, help="also write the numbers here")
     args = parser.parse_args(argv or [])
     clips = heldout_clips()
-    runs: dict[str, tuple[str, dict[str, object]]] = {"none": ("none", {}), "rnn (ours, default)": ("rnn", {"device": "cpu"})}
+    runs: dict[str, tuple[str, dict[str, object]]] = {
+        "none": ("none", {}),
+        "clean frames (perfect restoration)": (ORACLE, {}),
+        "rnn (ours, default)": ("rnn", {"device": "cpu"}),
+    }
     if AUTHORS_CKPT.is_file():
         runs["rnn (authors' checkpoint)"] = ("rnn", {"device": "cpu", "weights": str(AUTHORS_CKPT)})
     for w in args.weights:
         runs[f"rnn ({Path(w).name})"] = ("rnn", {"device": "cpu", "weights": w})
     rows, record = [], {}
     for label, (name, opts) in runs.items():
-        g = gate(evaluate(name, opts, clips), clips)
+        results = ([clip_lighting(images, clean, clean) for _, images, clean in clips] if name == ORACLE
+                   else evaluate(name, opts, clips))
+        g = gate(results, clips)
         record[label] = g
         ok = all(v for k, v in g.items() if k.startswith("pass_"))
         rows.append([label, f"{100 * g['flicker_reduction']:.0f}%", f"{100 * g['flicker_reduction_occluder_clips']:.0f}%",
@@ -110,7 +117,9 @@ def main(argv: list[str] | None = None) -> str:
         f"## Quality gate: {N_CLIPS} held-out synthetic clips x {N_FRAMES} frames ({SIZE}x{SIZE}), seeds {SEED0}..{SEED0 + N_CLIPS - 1}", "",
         markdown_table(["method", "flicker cut (disturbed)", "flicker cut (occluder clips)", "PSNR to clean (dB): input -> enhanced",
                         "steady clips: max darkening", "gate"], rows),
-        "", "Gate: flicker cut >= 50%, PSNR up, darkening <= 0.005 (the `none` row is the control and fails by design).",
+        "", "Gate: flicker cut >= 50%, PSNR up, darkening <= 0.005 (the `none` row is the control and fails by design;",
+        "the clean-frames row is what a perfect restoration would score: its flicker cut is the most that undoing the",
+        "disturbances can give, because the scene's own lighting changes with the camera's motion).",
     ])
 
 

@@ -142,13 +142,21 @@ def evaluate(
         typer.Option(
             "--synthetic",
             min=0,
-            help="Also evaluate N held-out synthetic clips, rendered into OUTPUT/clips/ (reused if complete).",
+            help="Also evaluate N synthetic clips with unseen seeds, rendered into OUTPUT/clips/ (reused if complete).",
         ),
     ] = 0,
     seed0: Annotated[
         int, typer.Option("--seed0", help="Seed of the first synthetic clip (clip i: seed0 + i).")
     ] = 800_000,  # colonlight.evaluation.clips.BENCHMARK_SEED0 (not imported: keeps `colonlight --help` light)
     frames: Annotated[int, typer.Option("--frames", min=2, help="Frames per synthetic clip.")] = 72,
+    family: Annotated[
+        str,
+        typer.Option(
+            "--family",
+            help="Synthetic settings: train (the generator's training ranges, unseen seeds; trackable motion) "
+            "or heldout (knobs pushed outside them, often faster than a tracker can follow at 18 fps).",
+        ),
+    ] = "train",
     size: Annotated[
         int, typer.Option("--size", min=32, help="Side of the synthetic frames in pixels.")
     ] = 256,
@@ -192,6 +200,8 @@ def evaluate(
     from colonlight.evaluation.runner import evaluate_clips, method_list, require_extras, summarize
 
     names = _method_names(methods)
+    if family not in ("train", "heldout"):
+        raise typer.BadParameter("choose train or heldout", param_hint="--family")
     try:
         require_extras(colmap)
     except ColonlightError as exc:
@@ -218,9 +228,11 @@ def evaluate(
                 console.print(f"[dim]rendered[/] {folder} ({done[0]}/{synthetic})", soft_wrap=True)
 
         if not quiet:
-            console.print(f"synthetic benchmark: {synthetic} held-out clips x {frames} frames ({size}x{size}) "
+            console.print(f"synthetic benchmark: {synthetic} clips ({family} settings) x {frames} frames ({size}x{size}) "
                           f"in {clip_dir}")  # fmt: skip
-        refs += make_benchmark(clip_dir, synthetic, seed0, frames, size, workers=workers, on_clip=rendered)
+        refs += make_benchmark(
+            clip_dir, synthetic, seed0, frames, size, workers=workers, on_clip=rendered, family=family  # type: ignore[arg-type]
+        )
     if not refs:
         error_line("no clips found in " + ", ".join(str(p) for p in inputs or []))
         raise typer.Exit(1)

@@ -55,7 +55,7 @@ def test_synthetic_benchmark_is_rendered_once_and_evaluated(tmp_path: Path) -> N
     marker = out / "clips" / "clip_00000" / "synth.json"
     stamp = marker.stat().st_mtime_ns
     meta = json.loads(marker.read_text())
-    assert meta["seed"] == 800_000 and meta["config"]["split"] == "heldout"
+    assert meta["seed"] == 800_000 and meta["config"]["split"] == "train"
     assert meta["config"]["close_occluder"] == "force"
     record = json.loads((out / "results.json").read_text())
     rows = {r["method"]: r for r in record["summary"]}

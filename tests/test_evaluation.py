@@ -238,9 +238,11 @@ def test_find_clips_takes_a_synthetic_folder_as_one_clip(tmp_path: Path) -> None
 
 
 def test_benchmark_plan_and_reuse(tmp_path: Path) -> None:
-    cfgs = [benchmark_config(i, 800_000 + i, 60, 64) for i in range(6)]
+    cfgs = [benchmark_config(i, 800_000 + i, 60, 64, family="heldout") for i in range(6)]
     assert [c.close_occluder for c in cfgs] == ["force", "forbid", "forbid"] * 2
     assert all(c.split == "heldout" and c.fps == 18 and c.n_frames == 60 for c in cfgs)
+    default = benchmark_config(0, 800_000, 60, 64)
+    assert default.split == "train" and default.heldout_params == ()
     seen: list[tuple[str, bool]] = []
     make_benchmark(tmp_path, 2, frames=3, size=32, on_clip=lambda p, new: seen.append((p.name, new)))
     make_benchmark(tmp_path, 2, frames=3, size=32, on_clip=lambda p, new: seen.append((p.name, new)))
