@@ -190,6 +190,14 @@ def evaluate(
     workers: Annotated[
         int, typer.Option("--workers", "-j", min=1, help="Processes rendering synthetic clips.")
     ] = 1,
+    cache: Annotated[
+        bool,
+        typer.Option(
+            "--cache/--no-cache",
+            help="Keep tracking/COLMAP results in OUTPUT/cache and reuse them for byte-identical frames "
+            "(re-running after adding a method computes only the new one).",
+        ),
+    ] = True,
     quiet: bool = options.Quiet,
     debug: bool = options.Debug,
 ) -> None:
@@ -242,6 +250,7 @@ def evaluate(
             result = evaluate_clips(
                 refs, specs, colmap=colmap, tracker=tracker, max_size=max_size or None, fps=fps,
                 max_frames=max_frames or None, threads=threads, progress=display.event,
+                cache_dir=output / "cache" if cache else None,
             )  # fmt: skip
         except ColonlightError as exc:
             if debug:

@@ -70,3 +70,25 @@ def test_usage_errors_exit_2(tmp_path: Path) -> None:
     assert runner.invoke(app, ["evaluate", "-o", str(tmp_path)]).exit_code == 2  # nothing to evaluate
     bad = runner.invoke(app, ["evaluate", str(tmp_path), "--methods", "none,sharpen"])
     assert bad.exit_code == 2 and "sharpen" in bad.output
+
+
+def test_rerun_reuses_tracking_and_colmap_and_adds_only_the_new_method(tmp_path: Path) -> None:
+    """A re-run with one more method computes that method's scores only; the shared rows stay identical."""
+    out = tmp_path / "bench"
+    base = ["evaluate", "--synthetic", "1", "--frames", "10", "--size", "64", "-o", str(out), "-q"]
+    first = runner.invoke(app, [*base, "--methods", "none,he"])
+    assert first.exit_code == 0, first.output
+    one = json.loads((out / "results.json").read_text())
+    assert one["settings"]["cache"]["reused"] == 0 and one["settings"]["cache"]["computed"] == 4  # 2 x (track, colmap)
+    second = runner.invoke(app, [*base, "--methods", "none,he,clahe"])
+    assert second.exit_code == 0, second.output
+    two = json.loads((out / "results.json").read_text())
+    assert two["settings"]["cache"] == {"folder": str(out / "cache"), "reused": 4, "computed": 2}
+    for label in ("none", "he"):
+        a, b = one["clips"][0]["results"][label], two["clips"][0]["results"][label]
+        assert a["colmap"] == b["colmap"] and a["tracking"] == b["tracking"]
+    assert "clahe" in two["clips"][0]["results"]
+    # the key is the frames' content: other frames (another gamma) are scored afresh
+    third = runner.invoke(app, [*base, "--methods", "gamma", "--no-colmap"])
+    assert third.exit_code == 0, third.output
+    assert json.loads((out / "results.json").read_text())["settings"]["cache"]["computed"] == 1

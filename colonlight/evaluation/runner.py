@@ -15,6 +15,7 @@ import traceback
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +25,7 @@ import numpy as np
 from ..errors import ColonlightError
 from ..methods import Method, available_methods, create_method
 from ..metrics import clip_lighting, content_masks, mean_luma
+from .cache import ResultCache
 from .clips import DEFAULT_FPS, DEFAULT_MAX_SIZE, ClipRef, EvalClip
 from .colmap import APE_STATS, ColmapSettings, run_colmap
 from .consistency import (
@@ -266,6 +268,10 @@ def _track(clip: EvalClip, frames: list[np.ndarray], settings: Any) -> dict[str,
     return out
 
 
+def _colmap(clip: EvalClip, frames: list[np.ndarray], settings: ColmapSettings) -> dict[str, Any]:
+    return run_colmap(frames, clip.K, clip.poses, clip.fps, settings).to_dict()
+
+
 def _strip_indices(n: int, k: int = STRIP_FRAMES) -> list[int]:
     return sorted({round(x) for x in np.linspace(0, n - 1, min(k, n))})
 
@@ -323,8 +329,11 @@ def evaluate_clip(
     tracker_settings: Any = None,
     keep_strip: bool = False,
     progress: Progress | None = None,
+    cache: ResultCache | None = None,
 ) -> tuple[ClipRecord, dict[str, list[np.ndarray]]]:
-    """Score every method on one loaded clip; returns its record and (if ``keep_strip``) frame thumbnails."""
+    """Score every method on one loaded clip; returns its record and (if ``keep_strip``) frame thumbnails.
+
+    ``cache``: reuse tracking and COLMAP results of byte-identical frames (see :mod:`.cache`)."""
     colmap_settings = colmap_settings or ColmapSettings()
     masks = content_masks(clip.frames)
     kind, corrs = _correspondences(clip)
@@ -358,11 +367,17 @@ def evaluate_clip(
             r.ssim_in, r.ssim_out = _nanmean(ssim_in), _nanmean(series)
             r.dark_in, r.bright_in = dark_in, bright_in
             r.dark_out, r.bright_out = exposure_fractions(out, masks)
+            truth = [clip.K, *(clip.poses or []), *(clip.depths or [])]
             if tracker:
-                r.tracking = _track(clip, out, tracker_settings)
+                r.tracking = _scored(
+                    cache, "tracker", [*out, *truth], {"settings": asdict(tracker_settings) if tracker_settings else None},
+                    partial(_track, clip, out, tracker_settings),
+                )  # fmt: skip
             if colmap:
-                cm = run_colmap(out, clip.K, clip.poses, clip.fps, colmap_settings)
-                r.colmap = cm.to_dict()
+                r.colmap = _scored(
+                    cache, "colmap", [*out, *truth], {"settings": asdict(colmap_settings), "fps": clip.fps},
+                    partial(_colmap, clip, out, colmap_settings),
+                )  # fmt: skip
             if keep_strip and spec.name != "none":  # the input's row already shows it
                 strips[spec.label] = [_thumb(out[i]) for i in idx]
         except ColonlightError as exc:
@@ -374,6 +389,16 @@ def evaluate_clip(
         if progress:
             progress("method", {"clip": clip.name, "method": spec.label, "error": r.error})
     return record, strips
+
+
+def _scored(
+    cache: ResultCache | None,
+    kind: str,
+    arrays: list[np.ndarray | None],
+    params: dict[str, Any],
+    compute: Callable[[], dict[str, Any]],
+) -> dict[str, Any]:
+    return compute() if cache is None else cache.get_or_compute(kind, arrays, params, compute)
 
 
 def build_methods(
@@ -414,9 +439,12 @@ def evaluate_clips(
     strips: int = 3,
     threads: int | None = 1,
     progress: Progress | None = None,
+    cache_dir: Path | None = None,
 ) -> EvaluationResult:
     """Evaluate ``methods`` on ``clips`` (loaded one at a time); see the module docstring.
 
+    ``cache_dir``: keep tracking and COLMAP results there and reuse them for byte-identical frames, so a re-run
+    (another method added, an interrupted run finished) computes only what is new.
     ``strips``: how many clips keep before/after thumbnails for the report. ``tracker_settings``: a
     :class:`colonlight.evaluation.tracker.TrackerSettings` (default thresholds when ``None``). ``threads``:
     torch and OpenCV threads while evaluating (restored afterwards; ``None`` leaves them). One by default, so
@@ -427,7 +455,7 @@ def evaluate_clips(
         return _evaluate_clips(
             clips, methods, colmap=colmap, tracker=tracker, max_size=max_size, fps=fps, max_frames=max_frames,
             colmap_settings=colmap_settings, tracker_settings=tracker_settings, strips=strips, threads=threads,
-            progress=progress,
+            progress=progress, cache=ResultCache(cache_dir) if cache_dir is not None else None,
         )  # fmt: skip
 
 
@@ -462,6 +490,7 @@ def _evaluate_clips(
     strips: int,
     threads: int | None,
     progress: Progress | None,
+    cache: ResultCache | None,
 ) -> EvaluationResult:
     t0 = time.perf_counter()
     colmap_settings = colmap_settings or ColmapSettings()
@@ -511,6 +540,7 @@ def _evaluate_clips(
             tracker_settings=tracker_settings,
             keep_strip=keep,
             progress=progress,
+            cache=cache,
         )
         result.clips.append(record)
         if keep:
@@ -519,6 +549,8 @@ def _evaluate_clips(
         if progress:
             progress("done", {"clip": name, "record": record})
     result.seconds = time.perf_counter() - t0
+    if cache is not None:
+        result.settings["cache"] = {"folder": str(cache.folder), "reused": cache.hits, "computed": cache.misses}
     return result
 
 
