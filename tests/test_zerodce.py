@@ -297,13 +297,14 @@ def test_training_lowers_the_loss_and_writes_weights_and_card(tmp_path: Path) ->
     ZeroDcePlusPlusMethod(weights=tmp_path / "pp.safetensors")
 
 
-def test_shipped_zerodce_weights_load_and_brighten_a_dark_frame() -> None:
+@pytest.mark.parametrize("variant", ["zerodce", "zerodce++"])
+def test_shipped_weights_load_and_brighten_a_dark_frame(variant: str) -> None:
     """The trained weights in the package load through their card (sha256 checked) and lift a dark frame."""
-    if not zd.DEFAULT_WEIGHTS["zerodce"].is_file():
-        pytest.skip("zerodce weights are not installed in this checkout")
-    method = create_method("zerodce")
-    card = json.loads(zd.DEFAULT_WEIGHTS["zerodce"].with_suffix(".json").read_text())
-    assert method.model_info() == {"name": "zerodce", "sha256": card["sha256"]}
+    if not zd.DEFAULT_WEIGHTS[variant].is_file():
+        pytest.skip(f"{variant} weights are not installed in this checkout")
+    method = create_method(variant)
+    card = json.loads(zd.DEFAULT_WEIGHTS[variant].with_suffix(".json").read_text())
+    assert method.model_info() == {"name": variant, "sha256": card["sha256"]}
     assert card["training"]["loss_weights"]["colour_constancy"] == 0.0  # the paper's retraining
     dark = np.full((48, 64, 3), 40, np.uint8)
     stream = method.stream()
