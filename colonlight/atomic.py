@@ -19,11 +19,11 @@ _UMASK = os.umask(0)
 os.umask(_UMASK)
 
 
-@contextmanager
-def atomic_path(dest: Path, suffix: str | None = None) -> Iterator[Path]:
-    """Yield a temporary path beside ``dest``; rename it onto ``dest`` if the block succeeds, else delete it.
+def new_temporary(dest: Path, suffix: str | None = None) -> Path:
+    """Create an empty temporary file beside ``dest``, named as a temporary (hidden, ``TMP_MARK``), and return it.
 
     ``suffix`` (default: that of ``dest``) is kept so that writers choosing a format by extension still work.
+    Move it into place with :func:`publish` (or delete it).
     """
     dest = Path(dest)
     dest.parent.mkdir(parents=True, exist_ok=True)
@@ -31,23 +31,46 @@ def atomic_path(dest: Path, suffix: str | None = None) -> Iterator[Path]:
         prefix=f".{dest.name}.", suffix=TMP_MARK + (dest.suffix if suffix is None else suffix), dir=dest.parent
     )
     os.close(fd)
-    tmp = Path(tmp_name)
-    os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600 files; outputs get the usual permissions
+    os.chmod(tmp_name, 0o666 & ~_UMASK)  # mkstemp makes 0600 files; outputs get the usual permissions
+    return Path(tmp_name)
+
+
+def publish(tmp: Path, dest: Path) -> None:
+    """Rename the finished temporary ``tmp`` onto ``dest`` (atomic); on failure the temporary is deleted."""
+    try:
+        os.replace(tmp, dest)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+@contextmanager
+def atomic_path(dest: Path, suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path beside ``dest``; rename it onto ``dest`` if the block succeeds, else delete it.
+
+    ``suffix`` (default: that of ``dest``) is kept so that writers choosing a format by extension still work.
+    """
+    tmp = new_temporary(dest, suffix)
     try:
         yield tmp
-        os.replace(tmp, dest)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+    publish(tmp, Path(dest))
+
+
+def write_synced(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` (usually a temporary from :func:`atomic_path`) and flush it to disk."""
+    with open(path, "wb") as fh:
+        fh.write(data)
+        fh.flush()
+        os.fsync(fh.fileno())
 
 
 def write_bytes_atomic(dest: Path, data: bytes) -> None:
     """Write ``data`` to ``dest`` atomically, flushed to disk before the rename."""
     with atomic_path(dest) as tmp:
-        with open(tmp, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
+        write_synced(tmp, data)
 
 
 def write_json_atomic(dest: Path, obj: Any) -> None:

@@ -261,6 +261,14 @@ def _init_worker(threads: int) -> None:
     torch.set_num_threads(max(1, threads))
 
 
+def _init_pool_worker(threads: int) -> None:
+    """A clip worker process: torch threads, then the imports frozen out of the cyclic GC (see cli/enhance.py)."""
+    import gc
+
+    _init_worker(threads)
+    gc.freeze()
+
+
 def network_threads(spec: MethodSpec, workers: int) -> int:
     """torch threads for a clip worker: one for the recurrent net on a small copy of the frame (a 3 ms step that
     a second OpenMP thread barely speeds up while its spinning starves the decode and encode threads), else the
@@ -337,7 +345,8 @@ def _run_pool(
     with ctx.Manager() as manager:
         events = manager.Queue() if progress else None
         with ProcessPoolExecutor(
-            max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(network_threads(spec, workers),)
+            max_workers=workers, mp_context=ctx, initializer=_init_pool_worker,
+            initargs=(network_threads(spec, workers),),
         ) as pool:
             futures: dict[Future[ClipOutcome], ClipJob] = {
                 pool.submit(_run_in_worker, job, spec, opts, overwrite, events): job for job in jobs

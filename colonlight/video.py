@@ -27,6 +27,7 @@ from typing import Any
 import av
 import cv2
 import numpy as np
+from av.video.reformatter import VideoReformatter
 
 from .atomic import atomic_path
 from .errors import InputError
@@ -493,11 +494,16 @@ def _decode(
     decoded = 0
     last_source = -1
     transform: Transform | None = None
+    # One swscale context (and pool of scaler threads) for the whole clip: ``frame.to_ndarray(format="rgb24")``
+    # makes a new context, and starts new scaler threads, for every frame (1350x1080: 1.2 ms of CPU and 3-4 ms of
+    # wall time a frame, against 0.45 ms reused). Same conversion (bilinear chroma, the frame's own matrix and
+    # range): identical pixels.
+    reformatter = VideoReformatter()
 
     def convert(frame: Any, source_index: int) -> np.ndarray:
         nonlocal size, transform
         try:
-            rgb = frame.to_ndarray(format="rgb24")
+            rgb = reformatter.reformat(frame, format="rgb24").to_ndarray()
         except (av.error.FFmpegError, ValueError) as exc:
             raise _error(path, f"cannot convert frame {source_index} to RGB ({_cause(exc)})") from exc
         if transform is None:

@@ -11,6 +11,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -254,3 +255,142 @@ def test_kill_9_then_rerun_is_byte_identical(tmp_path: Path, random_weights: Pat
     assert not [p for p in out.rglob("*") if "colonlight-tmp" in p.name]
     assert _outputs(out) == _outputs(clean)
     shutil.rmtree(out)
+
+
+# ------------------------------------------------------------------------- the pipeline's threads (enhance_clip)
+
+
+def _frame_bytes(clip_dir: Path) -> list[bytes]:
+    return [p.read_bytes() for p in sorted((clip_dir / "frames").iterdir())]
+
+
+@pytest.mark.parametrize("fmt", ["png", "jpg"])
+def test_pipeline_writes_what_the_methods_push_returns(tmp_path: Path, random_weights: Path, fmt: str) -> None:
+    """Decoded in one thread, enhanced in another, encoded by a pool and renamed in order: the frames are the
+    bytes of encoding what the method's own stream.push returns, in order, and the gammas are its gammas."""
+    from colonlight.frames import encode_image
+    from colonlight.methods import create_method
+    from colonlight.pipeline import ClipOptions, enhance_clip, iter_enhanced
+    from colonlight.video import iter_video_frames
+
+    clip = make_clip(tmp_path / "c.mp4", n_frames=40, fps=30, size=(200, 150))
+    for name, options in (("rnn", {"weights": str(random_weights), "device": "cpu"}), ("gamma", {"gamma": 0.7})):
+        method = create_method(name, **options)
+        out = tmp_path / f"out-{name}-{fmt}"
+        enhance_clip(clip, out, method, ClipOptions(format=fmt))
+        frames = (f.image for f in iter_video_frames(clip, 18))
+        expected = [encode_image(r.frame, fmt, 95) for r in iter_enhanced(frames, create_method(name, **options))]
+        assert _frame_bytes(out) == expected, name
+        gammas = [f["gamma"] for f in json.loads((out / "gammas.json").read_text())["frames"]]
+        pushed = iter_enhanced((f.image for f in iter_video_frames(clip, 18)), create_method(name, **options))
+        assert gammas == [r.gamma for r in pushed]
+
+
+def _record_renames(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """Names of the frames renamed into place, in the order the renames happen."""
+    import colonlight.atomic
+
+    renamed: list[str] = []
+    real = os.replace
+
+    def replace(src: object, dst: object) -> None:
+        real(src, dst)  # type: ignore[arg-type]
+        if Path(str(dst)).parent.name == "frames":
+            renamed.append(Path(str(dst)).name)
+
+    monkeypatch.setattr(colonlight.atomic.os, "replace", replace)
+    return renamed
+
+
+def test_frames_are_published_in_order_whatever_order_the_pool_encodes_them(
+    tmp_path: Path, random_weights: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from colonlight import pipeline
+    from colonlight.methods import create_method
+
+    real_encode = pipeline.encode_image
+
+    def uneven_encode(rgb: np.ndarray, fmt: str = "png", quality: int = 95) -> bytes:
+        data = real_encode(rgb, fmt, quality)
+        time.sleep(0.03 if int(rgb.sum()) % 3 == 0 else 0.0)  # some frames finish after later ones
+        return data
+
+    monkeypatch.setattr(pipeline, "encode_image", uneven_encode)
+    renamed = _record_renames(monkeypatch)
+    clip = make_clip(tmp_path / "c.mp4", n_frames=60, fps=30, size=(96, 64))
+    method = create_method("rnn", weights=str(random_weights), device="cpu")
+    res = pipeline.enhance_clip(clip, tmp_path / "out", method, pipeline.ClipOptions(format="jpg"))
+    assert res.frames == 36
+    assert renamed == [f"{i:06d}.jpg" for i in range(36)]
+
+
+@pytest.mark.parametrize("method_name", ["rnn", "gamma"])
+def test_a_failing_frame_leaves_a_gap_free_prefix_and_no_temporaries(
+    tmp_path: Path, random_weights: Path, monkeypatch: pytest.MonkeyPatch, method_name: str
+) -> None:
+    """A frame that cannot be encoded stops the clip: the frames on disk are 000000..k for some k before it
+    (never a hole), no temporary file is left, no gammas.json, and the error is the real one."""
+    from colonlight import pipeline
+    from colonlight.methods import create_method
+
+    real_encode = pipeline.encode_image
+    calls = {"n": 0}
+    lock = threading.Lock()
+
+    def failing_encode(rgb: np.ndarray, fmt: str = "png", quality: int = 95) -> bytes:
+        with lock:
+            calls["n"] += 1
+            n = calls["n"]
+        if n == 12:
+            raise OSError("disk full (simulated)")
+        time.sleep(0.002 * (n % 4))
+        return real_encode(rgb, fmt, quality)
+
+    monkeypatch.setattr(pipeline, "encode_image", failing_encode)
+    renamed = _record_renames(monkeypatch)
+    clip = make_clip(tmp_path / "c.mp4", n_frames=60, fps=30, size=(96, 64))
+    options = {"weights": str(random_weights), "device": "cpu"} if method_name == "rnn" else {"gamma": 0.7}
+    out = tmp_path / "out"
+    with pytest.raises(OSError, match="simulated"):
+        pipeline.enhance_clip(clip, out, create_method(method_name, **options), pipeline.ClipOptions(format="png"))
+    names = sorted(p.name for p in (out / "frames").iterdir())
+    assert names == [f"{i:06d}.png" for i in range(len(names))] == renamed
+    assert len(names) < 12 + pipeline._WRITERS  # never past the frame that failed (the 12th encoded)
+    assert not [p for p in out.rglob("*") if "colonlight-tmp" in p.name]
+    assert not (out / "gammas.json").exists()
+
+
+def test_an_abort_from_the_method_stops_the_writers_cleanly(
+    tmp_path: Path, random_weights: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An error on the main thread (here: the network) mid-clip: frames already queued may still land, in order;
+    nothing half-written, no temporaries, no gammas.json; a rerun completes the clip byte-identically."""
+    from colonlight import pipeline
+    from colonlight.methods import create_method
+    from colonlight.methods.rnn import RecurrentGammaStream
+
+    clip = make_clip(tmp_path / "c.mp4", n_frames=60, fps=30, size=(96, 64))
+    options = {"weights": str(random_weights), "device": "cpu"}
+    clean = tmp_path / "clean"
+    pipeline.enhance_clip(clip, clean, create_method("rnn", **options))
+
+    real_predict = RecurrentGammaStream.predict_a
+    seen = {"n": 0}
+
+    def predict_then_fail(self: RecurrentGammaStream, frame: np.ndarray) -> float:
+        seen["n"] += 1
+        if seen["n"] == 20:
+            raise KeyboardInterrupt
+        return real_predict(self, frame)
+
+    monkeypatch.setattr(RecurrentGammaStream, "predict_a", predict_then_fail)
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        pipeline.enhance_clip(clip, out, create_method("rnn", **options))
+    names = sorted(p.name for p in (out / "frames").iterdir())
+    assert names == [f"{i:06d}.png" for i in range(len(names))] and len(names) <= 19
+    assert not [p for p in out.rglob("*") if "colonlight-tmp" in p.name]
+    assert not (out / "gammas.json").exists()
+    monkeypatch.undo()
+    pipeline.enhance_clip(clip, out, create_method("rnn", **options))
+    assert _tree_bytes(out) == _tree_bytes(clean)

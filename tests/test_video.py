@@ -135,6 +135,31 @@ def test_source_times_follow_the_vfr_timestamps(clips: dict[str, Path]) -> None:
     assert all(f.source_time_s == by_index[f.source_index] for f in chosen)
 
 
+@needs_ffmpeg
+@pytest.mark.parametrize(
+    "codec_args",
+    [
+        ["-c:v", "libx264", "-pix_fmt", "yuv420p"],
+        ["-c:v", "libx264", "-pix_fmt", "yuvj420p"],  # full range
+        ["-c:v", "libx264", "-pix_fmt", "yuv444p10le"],
+        ["-c:v", "libx264", "-pix_fmt", "yuv420p", "-colorspace", "bt709", "-color_range", "tv"],
+        ["-c:v", "mjpeg", "-q:v", "3"],
+        ["-c:v", "ffv1", "-pix_fmt", "gray"],
+    ],
+    ids=["yuv420p", "yuvj420p", "yuv444p10", "bt709", "mjpeg", "gray"],
+)
+def test_rgb_conversion_is_pyavs_to_ndarray(tmp_path: Path, codec_args: list[str]) -> None:
+    """One swscale context per clip (not PyAV's new one, with new threads, for every frame) gives the very pixels
+    of ``frame.to_ndarray(format="rgb24")``, whatever the pixel format, range or matrix."""
+    path = make_clip(tmp_path / "c.mkv", 12, 25, size=(160, 96), codec_args=codec_args)
+    ours = [f.image for f in iter_video_frames(path, None)]
+    with av.open(str(path)) as c:
+        theirs = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
+    assert len(ours) == len(theirs) == 12
+    for a, b in zip(ours, theirs):
+        np.testing.assert_array_equal(a, b)
+
+
 # ------------------------------------------------------------------------------------------------ FpsSelector
 
 
