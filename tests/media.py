@@ -114,7 +114,11 @@ def make_clip(
     args = [*input_args, "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-framerate", str(fps)]
     args += ["-i", "-"]
     if audio:
-        args += ["-f", "lavfi", "-i", "sine=frequency=440:sample_rate=48000", "-shortest", "-c:a", "aac"]
+        # A sine as long as the video: `-shortest` alone cuts an endless source only after what the muxer has
+        # buffered, which varies with the machine's load (1.35 s or 1.66 s for the same clip).
+        seconds = float(n_frames / Fraction(str(fps)))
+        args += ["-f", "lavfi", "-i", f"sine=frequency=440:sample_rate=48000:duration={seconds:.6f}", "-shortest"]
+        args += ["-c:a", "aac"]
     _run([*args, *codec_args, *output_args, "-y", str(path)], stdin=raw)
     return path
 
