@@ -11,7 +11,8 @@ inference. Zero-DCE++ has its own scale factor s (official: the net at 1/12 reso
 padding instead of the official crop to multiples of s.
 
 Weights are read from safetensors only (default ``colonlight/weights/zerodce.safetensors`` /
-``zerodce++.safetensors``, not shipped unless trained; :func:`train_zerodce` makes them).
+``zerodce++.safetensors``, shipped: trained by ``colonlight train --method zerodce|zerodce++`` on the default
+model's synthetic clips without the colour-constancy loss; their cards give the exact command).
 """
 
 from __future__ import annotations
