@@ -59,18 +59,27 @@ def atomic_path(dest: Path, suffix: str | None = None) -> Iterator[Path]:
     publish(tmp, Path(dest))
 
 
-def write_synced(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` (usually a temporary from :func:`atomic_path`) and flush it to disk."""
-    with open(path, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
+def write_temporary(dest: Path, data: bytes) -> Path:
+    """Write ``data`` to a new temporary beside ``dest``, flushed to disk, and return it (deleted on failure).
+
+    The first half of an atomic write: :func:`publish` is the second. Split so that many temporaries can be
+    written in parallel and published in a chosen order (the frame writers of ``colonlight.pipeline``).
+    """
+    tmp = new_temporary(dest)
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return tmp
 
 
 def write_bytes_atomic(dest: Path, data: bytes) -> None:
     """Write ``data`` to ``dest`` atomically, flushed to disk before the rename."""
-    with atomic_path(dest) as tmp:
-        write_synced(tmp, data)
+    publish(write_temporary(dest, data), Path(dest))
 
 
 def write_json_atomic(dest: Path, obj: Any) -> None:

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from . import __version__
-from .atomic import new_temporary, publish, remove_stale_temporaries, write_json_atomic, write_synced
+from .atomic import publish, remove_stale_temporaries, write_json_atomic, write_temporary
 from .errors import InputError
 from .frames import encode_image
 from .methods.base import FrameResult, Method
@@ -156,14 +156,7 @@ class _FrameSink:
         self.count = 0
 
     def _write_temporary(self, dest: Path, frame: np.ndarray) -> Path:
-        data = encode_image(frame, self.opts.format, self.opts.quality)
-        tmp = new_temporary(dest)
-        try:
-            write_synced(tmp, data)
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
-        return tmp
+        return write_temporary(dest, encode_image(frame, self.opts.format, self.opts.quality))
 
     def _publish_oldest(self) -> None:
         fut, dest = self.pending.popleft()
