@@ -7,15 +7,22 @@ from functools import lru_cache
 from importlib.metadata import PackageNotFoundError, version
 
 
-@lru_cache(maxsize=1)
-def library_versions() -> dict[str, str]:
-    """Versions of colonlight, Python and the decoding/encoding/compute libraries."""
-    out = {"python": platform.python_version()}
-    for dist in ("colonlight", "torch", "av", "opencv-python-headless", "numpy"):
+def distribution_versions(names: tuple[str, ...]) -> dict[str, str]:
+    """Installed version of each distribution, ``"not installed"`` where absent."""
+    out = {}
+    for dist in names:
         try:
             out[dist] = version(dist)
         except PackageNotFoundError:
             out[dist] = "not installed"
+    return out
+
+
+@lru_cache(maxsize=1)
+def library_versions() -> dict[str, str]:
+    """Versions of colonlight, Python and the decoding/encoding/compute libraries."""
+    out = {"python": platform.python_version()}
+    out.update(distribution_versions(("colonlight", "torch", "av", "opencv-python-headless", "numpy")))
     try:
         import av
 

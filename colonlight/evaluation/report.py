@@ -15,7 +15,6 @@ import html
 import io
 import math
 from collections.abc import Sequence
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +23,7 @@ import numpy as np
 from .. import __version__
 from ..atomic import write_bytes_atomic, write_json_atomic
 from ..frames import encode_image
-from ..provenance import library_versions
+from ..provenance import distribution_versions, library_versions
 from .runner import EvaluationResult, summarize
 
 RESULTS_FILE, TABLE_MD, TABLE_CSV, CLIPS_CSV, REPORT_HTML = (
@@ -135,13 +134,7 @@ def clean_json(obj: Any) -> Any:
 
 
 def versions() -> dict[str, str]:
-    out = dict(library_versions())
-    for dist in _EXTRA_LIBS:
-        try:
-            out[dist] = version(dist)
-        except PackageNotFoundError:
-            out[dist] = "not installed"
-    return out
+    return {**library_versions(), **distribution_versions(_EXTRA_LIBS)}
 
 
 def provenance(result: EvaluationResult, command: str | None = None) -> dict[str, Any]:
