@@ -102,13 +102,15 @@ def clip_lighting(
     outputs: Sequence[np.ndarray],
     clean: Sequence[np.ndarray] | None = None,
     skip: int = 2,
+    masks: Sequence[np.ndarray] | None = None,
 ) -> ClipLighting:
     """Flicker and brightness of ``outputs`` against ``inputs``; PSNR to ``clean`` from frame ``skip`` on.
 
     The clip's PSNR is that of its mean squared error over all compared frames (a per-frame mean of PSNR would
-    be infinite as soon as one input frame equals its clean frame).
+    be infinite as soon as one input frame equals its clean frame). ``masks``: ``content_masks(inputs)``, when
+    the caller already has them (scoring several methods on one clip).
     """
-    masks = content_masks(inputs)
+    masks = content_masks(inputs) if masks is None else masks
     lin, lout = mean_luma(inputs, masks), mean_luma(outputs, masks)
     p_in = p_out = None
     if clean is not None:

@@ -356,7 +356,7 @@ def evaluate_clip(
         r = MethodClipResult(clip=clip.name, method=spec.label, frames=len(clip.frames))
         try:
             out, gammas, r.ms_per_frame, r.cpu_ms_per_frame = _run_method(method, clip.frames)
-            light = clip_lighting(clip.frames, out, clip.clean)
+            light = clip_lighting(clip.frames, out, clip.clean, masks=masks)
             r.flicker_in, r.flicker_out = light.flicker_in, light.flicker_out
             r.mean_luma_in, r.mean_luma_out = light.mean_luma_in, light.mean_luma_out
             r.psnr_in, r.psnr_out = light.psnr_in, light.psnr_out
