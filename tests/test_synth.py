@@ -22,7 +22,7 @@ from colonlight.synth import (
     make_dataset,
     write_clip,
 )
-from colonlight.synth.writer import rotation_to_quaternion
+from colonlight.synth.writer import read_tum, rotation_to_quaternion, tum_line
 
 W = 64
 
@@ -287,3 +287,18 @@ def test_looks_like_colonoscopy() -> None:
         y = f.clean.astype(float).mean(axis=2)
         assert np.percentile(y, 5) < 0.35 * np.percentile(y, 95)  # a dark lumen beside bright walls
         assert np.isinf(f.depth).any() or np.nanmax(f.depth[np.isfinite(f.depth)]) > 0.05  # it looks far
+
+
+def test_read_tum_reads_what_tum_line_writes(tmp_path: Path) -> None:
+    """The evaluation reads poses.txt with read_tum: it must give back the generator's poses."""
+    rng = np.random.default_rng(3)
+    poses = []
+    for _ in range(5):
+        m = np.eye(4)
+        m[:3, :3] = cv2.Rodrigues(rng.normal(size=3))[0]
+        m[:3, 3] = rng.normal(size=3)
+        poses.append(m)
+    lines = ["# t tx ty tz qx qy qz qw", *(tum_line(i / 18, p) for i, p in enumerate(poses))]
+    (tmp_path / "poses.txt").write_text("\n".join(lines) + "\n")
+    for got, want in zip(read_tum(tmp_path / "poses.txt"), poses, strict=True):
+        assert np.allclose(got, want, atol=1e-8)

@@ -30,6 +30,7 @@ from ..frames import list_image_frames, read_image
 from ..sources import clip_frames
 from ..synth import SynthConfig, decode_depth, write_clip
 from ..synth.config import Split
+from ..synth.writer import read_tum
 
 SYNTH_MARKER = "synth.json"
 DEFAULT_MAX_SIZE = 256
@@ -146,37 +147,6 @@ def scale_intrinsics(K: np.ndarray, sx: float, sy: float) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------- ground truth
-
-
-def quaternion_matrix(qx: float, qy: float, qz: float, qw: float) -> np.ndarray:
-    """3x3 rotation of a unit quaternion (normalised first)."""
-    q = np.array([qw, qx, qy, qz], dtype=np.float64)
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def read_tum(path: Path) -> list[np.ndarray]:
-    """4x4 poses of a TUM file (``t tx ty tz qx qy qz qw`` per line; ``#`` comments skipped)."""
-    poses = []
-    for n, line in enumerate(Path(path).read_text(encoding="utf-8").splitlines(), 1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        parts = line.split()
-        if len(parts) != 8:
-            raise InputError(f"{path}:{n}: expected 8 numbers (t tx ty tz qx qy qz qw), got {len(parts)}")
-        v = [float(p) for p in parts]
-        m = np.eye(4)
-        m[:3, :3] = quaternion_matrix(*v[4:8])
-        m[:3, 3] = v[1:4]
-        poses.append(m)
-    return poses
 
 
 def _read_depth_png(path: Path) -> np.ndarray:
@@ -408,7 +378,6 @@ __all__ = [
     "load_synthetic_clip",
     "load_user_clip",
     "make_benchmark",
-    "read_tum",
     "resize_depth",
     "scale_intrinsics",
 ]

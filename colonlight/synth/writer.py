@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 
 from ..atomic import atomic_path, write_bytes_atomic, write_json_atomic
+from ..errors import InputError
 from ..video import VideoWriter
 from .clip import SynthFrame, build_scene, render_frame
 from .config import Split, SynthConfig
@@ -80,6 +81,38 @@ def tum_line(time_s: float, pose: np.ndarray) -> str:
     q = rotation_to_quaternion(pose[:3, :3])
     t = pose[:3, 3]
     return f"{time_s:.6f} {t[0]:.9f} {t[1]:.9f} {t[2]:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}"
+
+
+def quaternion_to_rotation(qx: float, qy: float, qz: float, qw: float) -> np.ndarray:
+    """3x3 rotation of a unit quaternion (normalised first); the inverse of :func:`rotation_to_quaternion`."""
+    q = np.array([qw, qx, qy, qz], dtype=np.float64)
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def read_tum(path: Path) -> list[np.ndarray]:
+    """4x4 poses of a TUM file (``t tx ty tz qx qy qz qw`` per line; ``#`` comments skipped): reads what
+    :func:`tum_line` writes."""
+    poses = []
+    for n, line in enumerate(Path(path).read_text(encoding="utf-8").splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        parts = line.split()
+        if len(parts) != 8:
+            raise InputError(f"{path}:{n}: expected 8 numbers (t tx ty tz qx qy qz qw), got {len(parts)}")
+        v = [float(p) for p in parts]
+        m = np.eye(4)
+        m[:3, :3] = quaternion_to_rotation(*v[4:8])
+        m[:3, 3] = v[1:4]
+        poses.append(m)
+    return poses
 
 
 def encode_depth(depth_m: np.ndarray) -> np.ndarray:
