@@ -45,11 +45,21 @@ def mean_luma(frames: Sequence[np.ndarray], masks: Sequence[np.ndarray]) -> np.n
 
 
 def flicker(frames: Sequence[np.ndarray], masks: Sequence[np.ndarray]) -> float:
-    """Mean over consecutive frames of |change in mean luminance| over the masked pixels."""
-    lum = mean_luma(frames, masks)
-    d = np.abs(np.diff(lum))
-    d = d[np.isfinite(d)]
-    return float(d.mean()) if d.size else 0.0
+    """Mean over consecutive frames of |change in mean luminance| over the pixels masked in both frames.
+
+    Both means of a pair are taken over the same pixels: with each frame's own mask, a brighter input frame
+    (more pixels above the specular threshold) would move the mean by changing which pixels count, and even
+    a perfect restoration would appear to flicker.
+    """
+    d = []
+    prev = luma(frames[0]) if len(frames) else None
+    for t in range(1, len(frames)):
+        cur = luma(frames[t])
+        both = masks[t - 1] & masks[t]
+        if both.any():
+            d.append(abs(float(cur[both].mean()) - float(prev[both].mean())))  # type: ignore[index]
+        prev = cur
+    return float(np.mean(d)) if d else 0.0
 
 
 def mse(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:

@@ -36,6 +36,22 @@ def test_speculars_and_border_are_left_out() -> None:
     assert flicker(frames, masks) == pytest.approx(0.0, abs=1e-7)
 
 
+def test_flicker_compares_each_pair_over_the_same_pixels() -> None:
+    # a steady scene of a dark and a bright half; the bright half turns specular (> 0.7) in the input's odd
+    # frames, so those frames' masks drop it. Per-frame masks would see the steady clean frames flicker
+    # between the dark half's mean and the whole frame's mean; pairwise-common pixels see none.
+    clean = [np.zeros((16, 16, 3), np.uint8) for _ in range(4)]
+    for c in clean:
+        c[:, :8], c[:, 8:] = 60, 160
+    inputs = [c.copy() for c in clean]
+    for f in inputs[1::2]:
+        f[:, 8:] = 200
+    masks = content_masks(inputs)
+    assert masks[0][:, 8:].all() and not masks[1][:, 8:].any()
+    assert flicker(clean, masks) == pytest.approx(0.0, abs=1e-7)
+    assert flicker(inputs, masks) == pytest.approx(0.0, abs=1e-7)  # the changing half never counts
+
+
 def test_flicker_reduction_and_psnr() -> None:
     inputs = _clip([100, 160, 100, 160])
     outputs = _clip([100, 110, 100, 110])

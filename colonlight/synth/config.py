@@ -78,7 +78,9 @@ PARAM_SPECS: dict[str, ParamSpec] = {
     "wb_b": ParamSpec((0.9, 1.1)),
     "exposure_level": ParamSpec((0.45, 0.9)),
     # motion
-    "speed_mm_s": ParamSpec((5.0, 45.0), ((45.0, 70.0), (2.0, 5.0)), log=True),
+    # withdrawal during inspection is slow (guidelines ask for >= 6 min over ~1.5 m: ~4 mm/s), insertion and
+    # repositioning faster; held out: faster pulls and near-pauses
+    "speed_mm_s": ParamSpec((1.5, 20.0), ((20.0, 35.0), (0.7, 1.5)), log=True),
     "speed_var": ParamSpec((0.0, 0.8)),
     "lateral": ParamSpec((0.0, 0.45)),
     "look_var_deg": ParamSpec((2.0, 20.0)),
@@ -94,6 +96,10 @@ PARAM_SPECS: dict[str, ParamSpec] = {
     "gain_hold_s": ParamSpec((0.1, 1.5), log=True),
     "contrast_rate_hz": ParamSpec((0.1, 0.6)),
     "contrast_hold_s": ParamSpec((0.15, 2.0), log=True),
+    # frame-to-frame flicker (exposure hunting, light-source ripple): std of per-frame log gain / log contrast
+    "flicker_gain": ParamSpec((0.015, 0.12), ((0.12, 0.2),), log=True),
+    "flicker_contrast": ParamSpec((0.01, 0.08), ((0.08, 0.12),), log=True),
+    "flicker_corr": ParamSpec((0.0, 0.6)),
 }
 
 # Knobs that are switched off in a fraction of sampled clips (value forced to 0).
@@ -103,6 +109,8 @@ _OFF_PROB: dict[str, float] = {
     "ae_strength": 0.15,
     "gain_rate_hz": 0.15,
     "contrast_rate_hz": 0.2,
+    "flicker_gain": 0.2,
+    "flicker_contrast": 0.4,
     "fold_tilt": 0.2,
 }
 
@@ -195,6 +203,9 @@ class SynthConfig:
     gain_hold_s: float = 0.5
     contrast_rate_hz: float = 0.3
     contrast_hold_s: float = 0.6
+    flicker_gain: float = 0.0
+    flicker_contrast: float = 0.0
+    flicker_corr: float = 0.3
 
     def __post_init__(self) -> None:
         if isinstance(self.close_occluder, bool):  # convenience: True -> force, False -> forbid

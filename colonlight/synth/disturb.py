@@ -16,6 +16,9 @@ Model (display domain, ``y`` = the clean frame before 8-bit clipping, see ``rend
   exponentially. Overlapping jumps multiply, clipped to 0.4..2.5.
 * ``contrast_t``: power-curve changes to an exponent in 0.6..1.6 (away from 1), with abrupt or ramped onset
   and recovery.
+* frame-to-frame flicker on both (exposure control hunting, light-source ripple): log gain and log contrast
+  get AR(1) noise of standard deviation ``flicker_gain`` / ``flicker_contrast`` and lag-1 correlation
+  ``flicker_corr``. The contrast part changes the tone curve, which no affine brightness model absorbs.
 
 The clean frames use the fixed clean exposure (chosen per clip from all frames so they are well exposed on
 average) and gain = contrast = 1. ``steady`` clips have no disturbance (image == clean); ``undisturbed_seeds``
@@ -93,14 +96,24 @@ def plan_lighting(
     log_g, ev_g = _gain_events(cfg, rng, n, first)
     log_k, ev_k = _contrast_events(cfg, rng, n, first)
     log_e = _auto_exposure(cfg, mean_lum, first)
+    fl_g, fl_k = _flicker(cfg, rng, n, first)
     if not cfg.steady and n > first:
-        if not ev_g and not ev_k and cfg.ae_strength == 0:
+        if not ev_g and not ev_k and cfg.ae_strength == 0 and cfg.flicker_gain == 0 and cfg.flicker_contrast == 0:
             # a disturbed clip should disturb something: force one gain jump
             log_g, ev_g = _gain_events(cfg, rng, n, first, at_least_one=True)
-        gain = np.exp(np.clip(log_g, *np.log(GAIN_RANGE)))
-        contrast = np.exp(np.clip(log_k, *np.log(CONTRAST_RANGE)))
+        gain = np.exp(np.clip(log_g + fl_g, *np.log(GAIN_RANGE)))
+        contrast = np.exp(np.clip(log_k + fl_k, *np.log(CONTRAST_RANGE)))
         exposure = np.exp(np.clip(log_e, *np.log(EXPOSURE_RANGE)))
         events = ev_g + ev_k
+        if cfg.flicker_gain > 0 or cfg.flicker_contrast > 0:
+            events.append(
+                {
+                    "type": "flicker",
+                    "gain_std": cfg.flicker_gain,
+                    "contrast_std": cfg.flicker_contrast,
+                    "corr": cfg.flicker_corr,
+                }
+            )
         if cfg.ae_strength > 0:
             events.append(
                 {
@@ -114,6 +127,20 @@ def plan_lighting(
     return LightingSchedule(cfg.camera_gamma, clean_exposure, gain, contrast, exposure, events)
 
 
+def _flicker(
+    cfg: SynthConfig, rng: np.random.Generator, n: int, first: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame log gain and log contrast noise: stationary AR(1), zero on the undisturbed seed frames."""
+    white = rng.standard_normal((2, n))
+    rho = float(np.clip(cfg.flicker_corr, 0.0, 0.95))
+    ar = np.empty_like(white)
+    ar[:, 0] = white[:, 0]
+    for t in range(1, n):
+        ar[:, t] = rho * ar[:, t - 1] + np.sqrt(1 - rho * rho) * white[:, t]
+    ar[:, :first] = 0.0
+    return cfg.flicker_gain * ar[0], cfg.flicker_contrast * ar[1]
+
+
 def _auto_exposure(cfg: SynthConfig, mean_lum: np.ndarray, first: int) -> np.ndarray:
     """Log relative exposure from a lagging, possibly overshooting controller."""
     n = len(mean_lum)
@@ -123,11 +150,15 @@ def _auto_exposure(cfg: SynthConfig, mean_lum: np.ndarray, first: int) -> np.nda
     if cfg.ae_strength == 0:
         return out
     w0 = cfg.ae_speed
+    # the per-frame (semi-implicit Euler) update is unstable once 2 * damping * speed > 1 (fast, heavily damped
+    # controllers ring from frame to frame and diverge); cap the damping term there: no controller settles in
+    # less than a frame anyway
+    damp = min(2 * cfg.ae_damping * w0, 1.0)
     x = 0.0 if first > 0 else float(target[0])  # converged at the start unless the seeds must be clean
     v = 0.0
     for t in range(first, n):
         tgt = target[max(0, t - cfg.ae_delay)]
-        acc = w0 * w0 * (tgt - x) - 2 * cfg.ae_damping * w0 * v
+        acc = w0 * w0 * (tgt - x) - damp * v
         v += acc
         x += v
         out[t] = x
