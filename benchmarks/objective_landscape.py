@@ -12,7 +12,8 @@ For sequences cut exactly as in training (10 frames, stride 5, seeds 0 and 1), t
 If the objective is to teach a network to remove flicker, ``flatten`` and ``clean`` must score clearly below
 ``input`` and ``washout`` must not. The table shows for which sizes and camera speeds that holds. Two families of
 clips, both drawn from the generator's training split (seeds 1000..1005, the first training seeds): as sampled
-(camera speeds 5-45 mm/s), and the same clips with the camera slowed to 2 mm/s with little jitter and noise.
+(camera speeds from ``PARAM_SPECS["speed_mm_s"]``), and the same clips with the camera slowed to 2 mm/s with
+little jitter and noise.
 
 Run: ``python -m benchmarks objective_landscape`` (about 5 minutes on 2 cores).
 """
@@ -25,6 +26,7 @@ import cv2
 import numpy as np
 import torch
 
+from colonlight.synth.config import PARAM_SPECS
 from colonlight.train import sequence_loss
 
 from .common import markdown_table
@@ -88,7 +90,8 @@ def losses(images: torch.Tensor, clean: torch.Tensor) -> dict[str, float]:
 def main(argv: list[str] | None = None) -> str:
     torch.set_num_threads(1)
     rows = []
-    for family, overrides in (("as sampled (5-45 mm/s)", {}), ("slow camera (2 mm/s)", SLOW)):
+    lo, hi = PARAM_SPECS["speed_mm_s"].train
+    for family, overrides in ((f"as sampled ({lo:g}-{hi:g} mm/s)", {}), ("slow camera (2 mm/s)", SLOW)):
         clips = render(overrides)
         for size in SIZES:
             l = losses(sequences([c[0] for c in clips], size), sequences([c[1] for c in clips], size))

@@ -204,6 +204,17 @@ def test_make_dataset_parallel_and_resume(tmp_path: Path) -> None:
     assert (dirs[0] / "synth.json").stat().st_mtime_ns == stamp  # complete clip kept
 
 
+def test_make_dataset_mixes_in_steady_clips_by_seed(tmp_path: Path) -> None:
+    def steady(fraction: float, where: Path) -> list[bool]:
+        dirs = make_dataset(where, 12, seed=40, width=32, height=32, n_frames=3, workers=1,
+                            steady_fraction=fraction)
+        return [json.loads((d / "synth.json").read_text())["config"]["steady"] for d in dirs]
+
+    mixed = steady(0.5, tmp_path / "a")
+    assert 0 < sum(mixed) < 12 and steady(0.5, tmp_path / "b") == mixed  # chosen by the seeds
+    assert not any(steady(0.0, tmp_path / "c")) and all(steady(1.0, tmp_path / "d"))
+
+
 def test_quaternion_and_depth_encoding() -> None:
     rng = np.random.default_rng(0)
     mats = [np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0]), np.eye(3)]

@@ -298,10 +298,9 @@ def benchmark_config(
     """Clip ``index`` of the synthetic benchmark: every third clip (0, 3, 6, ...) has close-occluder moments, the
     others none; all start with two undisturbed frames so restoration can be scored against the clean frames.
 
-    ``family="train"`` draws the generator's training ranges (only the seeds are unseen): camera speeds of
-    5-45 mm/s, which a tracker can follow at 18 fps. ``"heldout"`` pushes at least two knobs outside them, often
-    the camera speed to 45-70 mm/s (2.5-4 mm between frames in a tube of ~18 mm radius), where even the clean
-    frames cannot be tracked, so the tracker could not tell methods apart.
+    ``family="train"`` draws the generator's training ranges (only the seeds are unseen): inspection-speed
+    camera motion (1.5-20 mm/s), which a tracker can follow at 18 fps. ``"heldout"`` pushes at least two knobs
+    outside them (camera speed, flicker strength, geometry, optics; see ``PARAM_SPECS``).
     """
     return SynthConfig.sample(
         np.random.default_rng([seed, 1]),  # the held-out stream make_dataset uses

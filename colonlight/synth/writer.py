@@ -259,10 +259,13 @@ def make_dataset(
     fps: float = 18,
     workers: int = 2,
     video: bool = False,
+    steady_fraction: float = 0.0,
     **overrides: Any,
 ) -> list[Path]:
     """Render ``n_clips`` clips into ``out_dir/clip_00000`` ...; clip i uses seed ``seed + i`` and a config
     drawn from ``split``'s ranges (``overrides``, e.g. steady=True, are passed to :meth:`SynthConfig.sample`).
+    About ``steady_fraction`` of the clips (chosen by their seeds) have no lighting disturbance: a model trained
+    on them sees that steady lighting, with the scene's own brightness changes, is to be left alone.
 
     Finished clips with the same config and seed are kept (an interrupted run resumes). Use disjoint seed
     ranges for train and held-out sets.
@@ -272,8 +275,11 @@ def make_dataset(
     for i in range(n_clips):
         s = seed + i
         rng = np.random.default_rng([s, 0 if split == "train" else 1])
+        over = dict(overrides)
+        if steady_fraction > 0 and np.random.default_rng([s, 2]).random() < steady_fraction:
+            over.setdefault("steady", True)
         cfg = SynthConfig.sample(
-            rng, split=split, width=width, height=height, n_frames=n_frames, fps=fps, **overrides
+            rng, split=split, width=width, height=height, n_frames=n_frames, fps=fps, **over
         )
         jobs.append((out_dir / f"clip_{i:05d}", cfg.to_dict(), s, {"video": video}))
     if workers <= 1 or len(jobs) <= 1:
