@@ -100,11 +100,13 @@ def compare_formats(work: Path, clip: Path, formats: tuple[str, ...] = ("png", "
     for fmt in formats:
         ours: list[tuple[float, int, float]] = []
         theirs: list[tuple[float, int, float]] = []
+        load: list[float] = []  # 1-minute load average before each run: the machine is shared
         for r in range(REPEATS):
             for who in ("ffmpeg", "colonlight") if r % 2 == 0 else ("colonlight", "ffmpeg"):
                 out = work / f"{who}-{fmt}"
                 shutil.rmtree(out, ignore_errors=True)
                 out.mkdir()
+                load.append(os.getloadavg()[0])
                 if who == "ffmpeg":
                     theirs.append(timed(ffmpeg_cmd(clip, out, fmt)))
                 else:
@@ -115,32 +117,34 @@ def compare_formats(work: Path, clip: Path, formats: tuple[str, ...] = ("png", "
         co, ct = statistics.median(t[2] for t in ours), statistics.median(t[2] for t in theirs)
         target = 1.0 if fmt == "png" else 1.3
         rows.append([fmt, n_ours, n_theirs, f"{mt:.2f}", f"{mo:.2f}", f"{ct:.1f}", f"{co:.1f}", f"{mo / mt:.2f}x",
-                     f"<= {target}x", "yes" if mo / mt <= target else "NO"])
+                     f"<= {target}x", "yes" if mo / mt <= target else "NO",
+                     f"{min(load):.1f}-{max(load):.1f}"])
     return rows
 
 
 def model_cost() -> list[list[object]]:
+    """ms per frame of the network as `colonlight enhance` runs it: the stream's own step (resize to the network
+    input, tensor, one recurrent step) with the torch thread count the CLI sets for that input size (one thread at
+    64x64: a second OpenMP thread barely helps such a small step, and on a busy machine it waits for a core)."""
     import torch
 
+    from colonlight.batch import MethodSpec, network_threads
     from colonlight.checkpoint import load_weights
-    from colonlight.methods.rnn import DEFAULT_MODEL_SIZE, network_input, to_tensor
+    from colonlight.methods.rnn import DEFAULT_MODEL_SIZE, RecurrentGammaMethod, network_input
 
     from .common import median_time
 
-    net = load_weights(None).net
+    weights = load_weights(None)
     frame = np.random.default_rng(0).integers(0, 256, (HEIGHT, WIDTH, 3), dtype=np.uint8)
     rows = []
     for label, size, reps in ((f"default ({DEFAULT_MODEL_SIZE}x{DEFAULT_MODEL_SIZE})", DEFAULT_MODEL_SIZE, 50),
                               (f"full resolution ({WIDTH}x{HEIGHT}, the release)", None, 3)):
-        state = None
-
-        def step() -> None:
-            nonlocal state
-            x = to_tensor(network_input(frame, size), torch.device("cpu"))
-            with torch.inference_mode():
-                _, state = net.step(x, state)
-
-        rows.append([label, f"{1000 * median_time(step, repeats=reps, warmup=2):.1f}"])
+        threads = network_threads(MethodSpec.of("rnn", model_size=size if size else "full"), 1)
+        torch.set_num_threads(threads)
+        stream = RecurrentGammaMethod(weights, model_size=size if size else "full", device="cpu").stream()
+        step = median_time(lambda s=stream: s.predict_a(frame), repeats=reps, warmup=2)
+        resize = median_time(lambda: network_input(frame, size), repeats=reps, warmup=2) if size else 0.0
+        rows.append([label, threads, f"{1000 * step:.1f}", f"{1000 * resize:.1f}" if size else "-"])
     return rows
 
 
@@ -171,14 +175,17 @@ def main() -> str:
         speed = compare_formats(work, clip)
         cost = model_cost()
         mem = memory(work)
+    load = " / ".join(f"{x:.1f}" for x in os.getloadavg())
     return "\n".join([
         f"## colonlight enhance vs FFmpeg (20 s 1350x1080 H.264 at 30 fps -> 18 fps frames; median of {REPEATS})", "",
         markdown_table(["format", "frames (ours)", "frames (ffmpeg)", "ffmpeg s", "colonlight s", "ffmpeg CPU s",
-                        "colonlight CPU s", "ratio (wall)", "target", "met"], speed),
+                        "colonlight CPU s", "ratio (wall)", "target", "met", "load avg (1 min)"], speed),
         "", "## Model cost per frame (network step incl. resize, 1350x1080 input)", "",
-        markdown_table(["network input", "ms/frame (median)"], cost),
+        markdown_table(["network input", "torch threads (as the CLI)", "ms/frame (median)", "of which resize ms"],
+                       cost),
         "", "## Peak memory of `colonlight enhance` (320x256 clips at 30 fps, PNG frames)", "",
         markdown_table(["clip", "frames", "seconds", "max RSS MiB"], mem),
+        "", f"{os.cpu_count()} cores; load average at the end (1 / 5 / 15 min): {load}.",
     ])
 
 

@@ -11,7 +11,7 @@ import typer
 
 from colonlight.batch import MethodSpec, _method_for, default_workers, discover_clips, run_batch
 from colonlight.errors import ColonlightError
-from colonlight.methods import available_methods
+from colonlight.methods import available_methods, is_available
 from colonlight.pipeline import ClipOptions
 
 from . import options
@@ -39,7 +39,7 @@ def enhance(
     debug: bool = options.Debug,
 ) -> None:
     """Enhance every clip under INPUTS into OUTPUT/<clip>/ (frames/, gammas.json, enhanced.mp4) plus OUTPUT/manifest.json."""
-    if method not in available_methods():
+    if not is_available(method):  # imports this method only (all of them only to list them in the error)
         raise typer.BadParameter(f"unknown method {method!r}; available: {', '.join(available_methods())}", param_hint="--method")
     if fmt not in ("png", "jpg"):
         raise typer.BadParameter("choose png or jpg", param_hint="--format")

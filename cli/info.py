@@ -4,19 +4,21 @@ from __future__ import annotations
 
 import json
 
-import torch
 import typer
 
-from colonlight.checkpoint import DEFAULT_WEIGHTS, load_weights
 from colonlight.errors import ColonlightError
-from colonlight.methods import available_methods
-from colonlight.provenance import library_versions
 
 from .display import out
 
 
 def info(as_json: bool = typer.Option(False, "--json", help="Machine-readable output.")) -> None:
     """Show versions, the default model (name, sha256, card), the device and the available methods."""
+    import torch
+
+    from colonlight.checkpoint import DEFAULT_WEIGHTS, load_weights
+    from colonlight.methods import available_methods
+    from colonlight.provenance import library_versions
+
     record: dict[str, object] = {"versions": library_versions(), "methods": available_methods()}
     try:
         w = load_weights(None)

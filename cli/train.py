@@ -3,16 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from colonlight.batch import discover_clips
-from colonlight.train import EpochRecord, TrainConfig, train
-
 from .display import console
 from .options import invocation
+
+if TYPE_CHECKING:
+    from colonlight.train import EpochRecord
 
 
 def _synthetic_clips(run_dir: Path, n: int, seed: int, frames: int, split: str, render: int) -> list[Path]:
@@ -25,6 +25,8 @@ def _synthetic_clips(run_dir: Path, n: int, seed: int, frames: int, split: str, 
 
 
 def _clips(paths: list[Path]) -> list[Path]:
+    from colonlight.batch import discover_clips
+
     return [j.source for j in discover_clips(paths, Path("."))]
 
 
@@ -76,6 +78,9 @@ def train_cmd(
         from colonlight.checkpoint import DEFAULT_WEIGHTS
 
         init = str(DEFAULT_WEIGHTS)
+    # Imported here, not at the top: other commands (enhance above all) do without torch's training side and kornia.
+    from colonlight.train import TrainConfig, train
+
     cfg = TrainConfig(size=size, seq_len=seq_len, stride=stride, batch=batch, lr=lr, epochs=epochs, seed=seed,
                       fps=fps or None, init=init)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("loss {task.fields[loss]:.4f}"),

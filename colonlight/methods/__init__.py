@@ -30,16 +30,20 @@ def _load(name: str) -> type[Method]:
     return getattr(importlib.import_module(module_name), class_name)  # type: ignore[no-any-return]
 
 
+def is_available(name: str) -> bool:
+    """True if ``name`` is a known method whose implementation imports; imports that method's module only."""
+    if name not in _REGISTRY:
+        return False
+    try:
+        _load(name)
+    except (ImportError, AttributeError):
+        return False
+    return True
+
+
 def available_methods() -> list[str]:
-    """Names of the methods whose implementation is present, in registry order."""
-    names = []
-    for name in _REGISTRY:
-        try:
-            _load(name)
-        except (ImportError, AttributeError):
-            continue
-        names.append(name)
-    return names
+    """Names of the methods whose implementation is present, in registry order (imports every method's module)."""
+    return [name for name in _REGISTRY if is_available(name)]
 
 
 def create_method(name: str, **options: Any) -> Method:
@@ -53,4 +57,4 @@ def create_method(name: str, **options: Any) -> Method:
     return cls(**options)
 
 
-__all__ = ["FrameResult", "Method", "MethodStream", "available_methods", "create_method"]
+__all__ = ["FrameResult", "Method", "MethodStream", "available_methods", "create_method", "is_available"]
