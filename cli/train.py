@@ -15,12 +15,13 @@ if TYPE_CHECKING:
     from colonlight.train import EpochRecord
 
 
-def _synthetic_clips(run_dir: Path, n: int, seed: int, frames: int, split: str, render: int) -> list[Path]:
+def _synthetic_clips(run_dir: Path, n: int, seed: int, frames: int, split: str, render: int,
+                     steady: float) -> list[Path]:
     """Render (or reuse) synthetic clips from the generator's training family; returns their frame folders."""
     from colonlight.synth import make_dataset
 
     dirs = make_dataset(run_dir / "data" / split, n, seed=seed, split="train", width=render, height=render,
-                        n_frames=frames, fps=18.0, workers=2, video=False)
+                        n_frames=frames, fps=18.0, workers=2, video=False, steady_fraction=steady)
     return [d / "frames" for d in dirs]
 
 
@@ -40,6 +41,7 @@ def train_cmd(
     synthetic_frames: int = typer.Option(100, "--synthetic-frames", min=12),
     synthetic_val: int = typer.Option(2, "--synthetic-val", min=0, help="Synthetic validation clips (seeds after the training ones)."),
     synthetic_size: int = typer.Option(128, "--synthetic-size", min=32, help="Render size of synthetic clips (then resized to --size)."),
+    synthetic_steady: float = typer.Option(0.25, "--synthetic-steady", min=0.0, max=1.0, help="Fraction of synthetic clips with steady lighting (to be left alone)."),
     method: str = typer.Option("rnn", "--method", help="rnn (the paper's model) | zerodce | zerodce++ (baselines)."),
     size: int = typer.Option(64, "--size", min=16, help="Training input size (match the inference default)."),
     epochs: int = typer.Option(10, "--epochs", min=1),
@@ -59,11 +61,14 @@ def train_cmd(
     val_clips = _clips(list(val or []))
     extra: dict[str, object] = {"command": command}
     if synthetic:
-        train_clips += _synthetic_clips(output, synthetic, synthetic_seed, synthetic_frames, "train", synthetic_size)
+        train_clips += _synthetic_clips(output, synthetic, synthetic_seed, synthetic_frames, "train", synthetic_size,
+                                        synthetic_steady)
         extra["data"] = (f"synthetic: {synthetic} clips x {synthetic_frames} frames rendered at {synthetic_size}px, "
-                         f"seeds {synthetic_seed}..{synthetic_seed + synthetic - 1}, generator split 'train'")
+                         f"seeds {synthetic_seed}..{synthetic_seed + synthetic - 1}, generator split 'train', "
+                         f"about {synthetic_steady:.0%} of them with steady lighting (no disturbance)")
         if synthetic_val and not val_clips:
-            val_clips = _synthetic_clips(output, synthetic_val, synthetic_seed + synthetic, synthetic_frames, "val", synthetic_size)
+            val_clips = _synthetic_clips(output, synthetic_val, synthetic_seed + synthetic, synthetic_frames, "val",
+                                          synthetic_size, synthetic_steady)
             extra["validation_data"] = f"synthetic: {synthetic_val} clips, seeds {synthetic_seed + synthetic}..{synthetic_seed + synthetic + synthetic_val - 1}"
     if not train_clips:
         raise typer.BadParameter("give clips to train on, or --synthetic N")
