@@ -207,6 +207,8 @@ def train(
     state_path = latest_state(run_dir) if resume else None
     if state_path is not None:
         start_epoch, history = _load_state(state_path, net, opt)
+        for group in opt.param_groups:  # the learning rate asked for now governs the remaining epochs
+            group["lr"] = cfg.lr
 
     steps = math.ceil(len(train_set) / cfg.batch)
     for epoch in range(start_epoch, cfg.epochs):

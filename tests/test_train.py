@@ -68,6 +68,10 @@ def test_short_training_lowers_loss_and_resumes_identically(tmp_path: Path) -> N
     a, b = load_weights(full.weights).net.state_dict(), load_weights(resumed.weights).net.state_dict()
     for k in a:
         assert torch.allclose(a[k].float(), b[k].float(), atol=1e-6), k
+    # a resume with another learning rate uses it for the remaining epochs (not the saved optimizer's)
+    slower = train(clips[:2], clips[2:], tmp_path / "part", TrainConfig(**{**vars(cfg), "epochs": 4, "lr": 1e-4}))
+    state = json.loads((tmp_path / "part" / "checkpoints" / "epoch_004.json").read_text())
+    assert [g["lr"] for g in state["param_groups"]] == [1e-4] and len(slower.history) == 4
     card = json.loads(full.weights.with_suffix(".json").read_text())
     assert card["input_size"] == 32 and card["training"]["epochs"] == 3 and len(card["sha256"]) == 64
 
