@@ -1,8 +1,12 @@
-"""Run the benchmarks: `python -m benchmarks [input_size] [enhance] [service] [quality_gate] [objective_landscape]` (default: all)."""
+"""Run the benchmarks: `python -m benchmarks [input_size] [enhance] [service] [quality_gate] [objective_landscape]` (default: all).
+
+Options after a name go to that benchmark: `python -m benchmarks quality_gate --json gate.json`.
+"""
 
 from __future__ import annotations
 
 import importlib
+import inspect
 import sys
 
 BENCHMARKS = {
@@ -14,17 +18,29 @@ BENCHMARKS = {
 }
 
 
+def parse(argv: list[str]) -> list[tuple[str, list[str]]]:
+    """``["quality_gate", "--json", "f", "enhance"]`` -> ``[("quality_gate", ["--json", "f"]), ("enhance", [])]``."""
+    runs: list[tuple[str, list[str]]] = []
+    for arg in argv:
+        if runs and (arg.startswith("-") or (runs[-1][1] and runs[-1][1][-1].startswith("-") and arg not in BENCHMARKS)):
+            runs[-1][1].append(arg)
+        elif arg in BENCHMARKS:
+            runs.append((arg, []))
+        else:
+            raise SystemExit(f"unknown benchmark {arg!r}; choose from {', '.join(BENCHMARKS)}")
+    return runs or [(name, []) for name in BENCHMARKS]
+
+
 def main(argv: list[str]) -> None:
-    names = argv or list(BENCHMARKS)
-    for name in names:
-        if name not in BENCHMARKS:
-            raise SystemExit(f"unknown benchmark {name!r}; choose from {', '.join(BENCHMARKS)}")
+    for name, options in parse(argv):
         try:
             module = importlib.import_module(BENCHMARKS[name])
         except ImportError as exc:
             print(f"## {name}: not available ({exc})\n")
             continue
-        print(module.main(), flush=True)
+        if options and not inspect.signature(module.main).parameters:
+            raise SystemExit(f"benchmark {name!r} takes no options (got {' '.join(options)})")
+        print(module.main(options) if options else module.main(), flush=True)
         print()
 
 
