@@ -54,18 +54,13 @@ def enhance(
     # again meanwhile, is off until they are frozen below (-0.1 s CPU of a ~1 s load).
     gc.disable()
     try:
-        _method_for(spec)  # load the model now: a bad checkpoint or absent device stops here, loudly
-    except (ColonlightError, ValueError) as exc:
-        gc.enable()
-        if debug:
-            raise
-        error_line(str(exc))
-        raise typer.Exit(2) from None
-    except BaseException:
-        gc.enable()
-        raise
-
-    try:
+        try:
+            _method_for(spec)  # load the model now: a bad checkpoint or absent device stops here, loudly
+        except (ColonlightError, ValueError) as exc:
+            if debug:
+                raise
+            error_line(str(exc))
+            raise typer.Exit(2) from None
         jobs = discover_clips(inputs, output, pattern)
     finally:
         # Everything imported so far (torch alone is ~10^5 objects) lives as long as the process: moved out of the

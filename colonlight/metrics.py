@@ -51,13 +51,15 @@ def flicker(frames: Sequence[np.ndarray], masks: Sequence[np.ndarray]) -> float:
     (more pixels above the specular threshold) would move the mean by changing which pixels count, and even
     a perfect restoration would appear to flicker.
     """
+    if len(frames) < 2:
+        return 0.0
     d = []
-    prev = luma(frames[0]) if len(frames) else None
+    prev = luma(frames[0])
     for t in range(1, len(frames)):
         cur = luma(frames[t])
         both = masks[t - 1] & masks[t]
         if both.any():
-            d.append(abs(float(cur[both].mean()) - float(prev[both].mean())))  # type: ignore[index]
+            d.append(abs(float(cur[both].mean()) - float(prev[both].mean())))
         prev = cur
     return float(np.mean(d)) if d else 0.0
 

@@ -97,15 +97,16 @@ def plan_lighting(
     log_k, ev_k = _contrast_events(cfg, rng, n, first)
     log_e = _auto_exposure(cfg, mean_lum, first)
     fl_g, fl_k = _flicker(cfg, rng, n, first)
+    flickers = cfg.flicker_gain != 0 or cfg.flicker_contrast != 0  # the AR(1) noise is applied
     if not cfg.steady and n > first:
-        if not ev_g and not ev_k and cfg.ae_strength == 0 and cfg.flicker_gain == 0 and cfg.flicker_contrast == 0:
+        if not ev_g and not ev_k and cfg.ae_strength == 0 and not flickers:
             # a disturbed clip should disturb something: force one gain jump
             log_g, ev_g = _gain_events(cfg, rng, n, first, at_least_one=True)
         gain = np.exp(np.clip(log_g + fl_g, *np.log(GAIN_RANGE)))
         contrast = np.exp(np.clip(log_k + fl_k, *np.log(CONTRAST_RANGE)))
         exposure = np.exp(np.clip(log_e, *np.log(EXPOSURE_RANGE)))
         events = ev_g + ev_k
-        if cfg.flicker_gain > 0 or cfg.flicker_contrast > 0:
+        if flickers:
             events.append(
                 {
                     "type": "flicker",
