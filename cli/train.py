@@ -16,12 +16,13 @@ if TYPE_CHECKING:
 
 
 def _synthetic_clips(run_dir: Path, n: int, seed: int, frames: int, split: str, render: int,
-                     steady: float) -> list[Path]:
+                     steady: float, occluders: float) -> list[Path]:
     """Render (or reuse) synthetic clips from the generator's training family; returns their frame folders."""
     from colonlight.synth import make_dataset
 
     dirs = make_dataset(run_dir / "data" / split, n, seed=seed, split="train", width=render, height=render,
-                        n_frames=frames, fps=18.0, workers=2, video=False, steady_fraction=steady)
+                        n_frames=frames, fps=18.0, workers=2, video=False, steady_fraction=steady,
+                        occluder_fraction=occluders)
     return [d / "frames" for d in dirs]
 
 
@@ -42,14 +43,16 @@ def train_cmd(
     synthetic_val: int = typer.Option(2, "--synthetic-val", min=0, help="Synthetic validation clips (seeds after the training ones)."),
     synthetic_size: int = typer.Option(128, "--synthetic-size", min=32, help="Render size of synthetic clips (then resized to --size)."),
     synthetic_steady: float = typer.Option(0.25, "--synthetic-steady", min=0.0, max=1.0, help="Fraction of synthetic clips with steady lighting (to be left alone)."),
+    synthetic_occluders: float = typer.Option(0.0, "--synthetic-occluders", min=0.0, max=1.0, help="Fraction of synthetic clips forced to have a close-occluder moment (otherwise each clip has one by chance, 35%)."),
     method: str = typer.Option("rnn", "--method", help="rnn (the paper's model) | zerodce | zerodce++ (baselines)."),
-    size: int = typer.Option(64, "--size", min=16, help="Training input size (match the inference default)."),
+    size: int = typer.Option(48, "--size", min=16, help="Training input size (match the inference default, 48)."),
     epochs: int = typer.Option(10, "--epochs", min=1),
     batch: int = typer.Option(4, "--batch", min=1),
     lr: float = typer.Option(5e-5, "--lr"),
     seq_len: int = typer.Option(10, "--seq-len", min=3),
     stride: int = typer.Option(5, "--stride", min=1),
     seed: int = typer.Option(0, "--seed"),
+    anchor: float = typer.Option(0.0, "--anchor", min=0.0, help="Weight of the brightness anchor added to the paper's loss (0: the paper's objective exactly)."),
     init: Optional[str] = typer.Option(None, "--init", help="Start from a checkpoint (ours or the authors' .pth), or 'default'."),
     name: str = typer.Option("colonlight-rnn", "--name", help="Name of the weights file and card."),
     resume: bool = typer.Option(True, "--resume/--no-resume", help="Continue from the last epoch saved in OUTPUT."),
@@ -62,13 +65,15 @@ def train_cmd(
     extra: dict[str, object] = {"command": command}
     if synthetic:
         train_clips += _synthetic_clips(output, synthetic, synthetic_seed, synthetic_frames, "train", synthetic_size,
-                                        synthetic_steady)
+                                        synthetic_steady, synthetic_occluders)
         extra["data"] = (f"synthetic: {synthetic} clips x {synthetic_frames} frames rendered at {synthetic_size}px, "
                          f"seeds {synthetic_seed}..{synthetic_seed + synthetic - 1}, generator split 'train', "
-                         f"about {synthetic_steady:.0%} of them with steady lighting (no disturbance)")
+                         f"about {synthetic_steady:.0%} of them with steady lighting (no disturbance)"
+                         + (f", about {synthetic_occluders:.0%} forced to have a close-occluder moment"
+                            if synthetic_occluders else ""))
         if synthetic_val and not val_clips:
             val_clips = _synthetic_clips(output, synthetic_val, synthetic_seed + synthetic, synthetic_frames, "val",
-                                          synthetic_size, synthetic_steady)
+                                          synthetic_size, synthetic_steady, synthetic_occluders)
             extra["validation_data"] = f"synthetic: {synthetic_val} clips, seeds {synthetic_seed + synthetic}..{synthetic_seed + synthetic + synthetic_val - 1}"
     if not train_clips:
         raise typer.BadParameter("give clips to train on, or --synthetic N")
@@ -87,7 +92,7 @@ def train_cmd(
     from colonlight.train import TrainConfig, train
 
     cfg = TrainConfig(size=size, seq_len=seq_len, stride=stride, batch=batch, lr=lr, epochs=epochs, seed=seed,
-                      fps=fps or None, init=init)
+                      fps=fps or None, init=init, anchor=anchor)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("loss {task.fields[loss]:.4f}"),
                   TimeRemainingColumn(), console=console) as progress:
         task = progress.add_task("epoch", total=None, loss=float("nan"))

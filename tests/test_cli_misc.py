@@ -34,11 +34,13 @@ def test_synth_rejects_bad_split(tmp_path: Path) -> None:
 
 def test_train_command_on_synthetic_clips(tmp_path: Path) -> None:
     result = runner.invoke(app, ["train", "--synthetic", "2", "--synthetic-frames", "12", "--synthetic-val", "1",
-                                 "--synthetic-size", "48", "--size", "32", "--epochs", "1", "-o", str(tmp_path / "run")])
+                                 "--synthetic-size", "48", "--size", "32", "--epochs", "1", "-o", str(tmp_path / "run"),
+                                 "--synthetic-occluders", "0.5", "--anchor", "0.05"])
     assert result.exit_code == 0, result.output
     card = json.loads((tmp_path / "run" / "colonlight-rnn.json").read_text())
     assert card["training"]["command"].startswith("colonlight train ") and "--synthetic 2 " in card["training"]["command"]
-    assert "seeds 1000..1001" in card["training"]["data"]
+    assert "seeds 1000..1001" in card["training"]["data"] and "50% forced to have a close-occluder" in card["training"]["data"]
+    assert card["training"]["anchor"] == 0.05 and "brightness anchor" in card["training"]["objective"]
     assert len(card["training"]["history"]) == 1
     out = runner.invoke(app, ["enhance", str(tmp_path / "run" / "data" / "val"), "-o", str(tmp_path / "o"),
                               "--weights", str(tmp_path / "run" / "colonlight-rnn.safetensors"), "-q",
@@ -66,5 +68,8 @@ def test_info_shows_the_default_model_card() -> None:
     result = runner.invoke(app, ["info", "--json"])
     info = json.loads(result.output)
     card = info["default_model"]["card"]
-    assert card["name"] == "colonlight-rnn" and card["input_size"] == 64
+    from colonlight.methods.rnn import DEFAULT_MODEL_SIZE
+
+    # the shipped model is trained at the size it is run at
+    assert card["name"] == "colonlight-rnn" and card["input_size"] == card["training"]["size"] == DEFAULT_MODEL_SIZE
     assert "synthetic" in card["training"]["data"] and card["training"]["history"]

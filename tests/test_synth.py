@@ -215,6 +215,17 @@ def test_make_dataset_mixes_in_steady_clips_by_seed(tmp_path: Path) -> None:
     assert not any(steady(0.0, tmp_path / "c")) and all(steady(1.0, tmp_path / "d"))
 
 
+def test_make_dataset_forces_close_occluders_by_seed(tmp_path: Path) -> None:
+    def modes(fraction: float, where: Path) -> list[str]:
+        dirs = make_dataset(where, 12, seed=40, width=32, height=32, n_frames=3, workers=1,
+                            steady_fraction=0.5, occluder_fraction=fraction)
+        return [json.loads((d / "synth.json").read_text())["config"]["close_occluder"] for d in dirs]
+
+    mixed = modes(0.5, tmp_path / "a")
+    assert 0 < mixed.count("force") < 12 and modes(0.5, tmp_path / "b") == mixed  # chosen by the seeds
+    assert set(modes(0.0, tmp_path / "c")) == {"random"} and set(modes(1.0, tmp_path / "d")) == {"force"}
+
+
 def test_quaternion_and_depth_encoding() -> None:
     rng = np.random.default_rng(0)
     mats = [np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0]), np.eye(3)]

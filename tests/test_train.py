@@ -52,6 +52,25 @@ def test_loss_prefers_the_gamma_that_undoes_a_disturbance() -> None:
     assert float(sequence_loss(frames, right)) < 1e-4 < float(sequence_loss(frames, wrong))
 
 
+def test_brightness_anchor_adds_the_weighted_mean_shift_and_is_off_by_default() -> None:
+    torch.manual_seed(0)
+    frames = torch.rand(2, 5, 3, 16, 16) * 0.9
+    a = torch.tensor([[1.0, 1.0, 1.5, 0.8, 1.2], [1.0, 1.0, 1.0, 1.0, 1.0]])
+    paper = sequence_loss(frames, a)
+    assert float(sequence_loss(frames, a, anchor=0.0)) == float(paper)
+    # expected: per target, the shift of its mean over the pixels the loss keeps (input <= 0.7), averaged
+    shifts = []
+    for b in range(2):
+        for t in range(2, 5):
+            keep = frames[b, t].mean(dim=0) <= SPECULAR_THRESHOLD
+            shift = (frames[b, t].clamp_min(1e-8) ** (1 / a[b, t]) - frames[b, t])[:, keep].mean()
+            shifts.append(abs(float(shift)))
+    expected = float(paper) + 0.3 * float(np.mean(shifts))
+    assert float(sequence_loss(frames, a, anchor=0.3)) == pytest.approx(expected, rel=1e-4)
+    assert shifts[3:] == [0.0, 0.0, 0.0]  # a = 1 moves nothing, so costs nothing
+    assert TrainConfig().anchor == 0.0
+
+
 def test_short_training_lowers_loss_and_resumes_identically(tmp_path: Path) -> None:
     clips = [_flicker_clip(tmp_path / f"c{i}", seed=i) for i in range(3)]
     cfg = TrainConfig(size=32, epochs=3, batch=2, lr=2e-3, seed=0)

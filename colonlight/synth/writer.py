@@ -260,12 +260,16 @@ def make_dataset(
     workers: int = 2,
     video: bool = False,
     steady_fraction: float = 0.0,
+    occluder_fraction: float = 0.0,
     **overrides: Any,
 ) -> list[Path]:
     """Render ``n_clips`` clips into ``out_dir/clip_00000`` ...; clip i uses seed ``seed + i`` and a config
     drawn from ``split``'s ranges (``overrides``, e.g. steady=True, are passed to :meth:`SynthConfig.sample`).
     About ``steady_fraction`` of the clips (chosen by their seeds) have no lighting disturbance: a model trained
     on them sees that steady lighting, with the scene's own brightness changes, is to be left alone.
+    About ``occluder_fraction`` of the clips (chosen by their seeds, independently) are forced to have a close
+    occluder moment, the paper's failure case: a wall that is bright because it is near, not because the
+    exposure jumped.
 
     Finished clips with the same config and seed are kept (an interrupted run resumes). Use disjoint seed
     ranges for train and held-out sets.
@@ -278,6 +282,8 @@ def make_dataset(
         over = dict(overrides)
         if steady_fraction > 0 and np.random.default_rng([s, 2]).random() < steady_fraction:
             over.setdefault("steady", True)
+        if occluder_fraction > 0 and np.random.default_rng([s, 3]).random() < occluder_fraction:
+            over.setdefault("close_occluder", "force")
         cfg = SynthConfig.sample(
             rng, split=split, width=width, height=height, n_frames=n_frames, fps=fps, **over
         )
