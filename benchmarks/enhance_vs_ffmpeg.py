@@ -125,7 +125,8 @@ def compare_formats(work: Path, clip: Path, formats: tuple[str, ...] = ("png", "
 def model_cost() -> list[list[object]]:
     """ms per frame of the network as `colonlight enhance` runs it: the stream's own step (resize to the network
     input, tensor, one recurrent step) with the torch thread count the CLI sets for that input size (one thread at
-    64x64: a second OpenMP thread barely helps such a small step, and on a busy machine it waits for a core)."""
+    the default size: a second OpenMP thread barely helps such a small step, and on a busy machine it waits for a
+    core)."""
     import torch
 
     from colonlight.batch import MethodSpec, network_threads

@@ -33,7 +33,7 @@ from .common import markdown_table
 
 SEEDS = range(1000, 1006)
 N_FRAMES, RENDER = 40, 256
-SIZES = (64, 128, 256)
+SIZES = (48, 64, 128, 256)
 SLOW = {"speed_mm_s": 2.0, "speed_var": 0.0, "jitter_deg": 0.1, "look_var_deg": 2.0, "lateral": 0.0,
         "roll_var_deg": 0.0, "roll_rate_deg_s": 0.0, "read_noise": 0.001, "shot_noise": 0.0005}
 

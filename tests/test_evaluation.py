@@ -32,6 +32,7 @@ from colonlight.evaluation.consistency import (
 from colonlight.evaluation.report import write_report
 from colonlight.evaluation.runner import EvalMethod, evaluate_clip, evaluate_clips, method_list, summarize
 from colonlight.methods import available_methods
+from colonlight.methods.rnn import DEFAULT_MODEL_SIZE
 from colonlight.metrics import content_masks
 
 from .conftest import AUTHORS_CKPT
@@ -417,7 +418,7 @@ def test_report_files_are_complete_and_self_contained(all_methods_run: tuple) ->
     assert prov["command"] == "colonlight evaluate --synthetic 1" and prov["colonlight_version"]
     assert {"pycolmap", "evo", "scikit-image"} <= set(prov["versions"])
     rnn = next(m for m in record["methods"] if m["label"] == "rnn (ours)")
-    assert len(rnn["model"]["sha256"]) == 64 and rnn["parameters"]["model_size"] == 64
+    assert len(rnn["model"]["sha256"]) == 64 and rnn["parameters"]["model_size"] == DEFAULT_MODEL_SIZE
     assert record["clips"][0]["results"]["rnn (ours)"]["gammas"][:2] == [1.0, 1.0]
     md = paths["markdown"].read_text()
     for label in result.labels:

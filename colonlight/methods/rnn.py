@@ -23,7 +23,7 @@ from ..model import State
 from .base import FrameResult, Method, MethodStream, check_frame
 
 #: Network input side in pixels. Chosen by measurement (README, "Choosing the network input size").
-DEFAULT_MODEL_SIZE = 64
+DEFAULT_MODEL_SIZE = 48
 #: The applied gamma is kept inside this range; a value outside it is clamped and the clamp recorded.
 GAMMA_MIN, GAMMA_MAX = 0.125, 4.0
 SEED_FRAMES = 2
