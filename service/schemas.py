@@ -23,7 +23,7 @@ class JobOptions(BaseModel):
 
     fps: float | None = Field(None, ge=0, le=240, description="Extraction rate; 0 keeps every frame (default: the server's, 18).")
     method: str | None = Field(None, description="Enhancement method (default: the server's, rnn).")
-    model_size: str | None = Field(None, description="rnn only: network input side in pixels (8..1024) or 'full'.")
+    model_size: str | None = Field(None, description="rnn only: network input side in pixels (8..1024) or 'full'; default: the size the weights were trained at (48 for the shipped model).")
     gamma: float | None = Field(None, gt=0, le=10, description="method=gamma only: the exponent (out = in ** gamma).")
     format: Literal["png", "jpg"] = Field("png", description="Format of the enhanced frames (the zip).")
     quality: int = Field(95, ge=1, le=100, description="JPEG quality.")

@@ -69,6 +69,7 @@ def test_tree_layout_and_gammas(tree: Path, tmp_path: Path, random_weights: Path
     assert {"clip", "source", "fps", "method", "model", "parameters", "colonlight_version", "frames"} <= g.keys()
     assert g["clip"] == "site1/p7" and g["fps"] == 18.0 and g["method"] == "rnn"
     assert g["model"]["name"] == "random-test" and len(g["model"]["sha256"]) == 64
+    assert g["parameters"]["model_size"] == 64  # the size these weights' card says they were trained at
     assert [f["index"] for f in g["frames"]] == list(range(36))
     assert g["frames"][0]["gamma"] == 1.0 and g["frames"][1]["gamma"] == 1.0
     assert g["frames"][5]["time_s"] == pytest.approx(5 / 18, abs=1e-6)

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from colonlight.checkpoint import load_weights
-from colonlight.methods.rnn import GAMMA_MAX, GAMMA_MIN, RecurrentGammaMethod, clamp_gamma
+from colonlight.methods.rnn import DEFAULT_MODEL_SIZE, GAMMA_MAX, GAMMA_MIN, RecurrentGammaMethod, clamp_gamma
 from colonlight.model import GammaNet, correct, parameter_count
 
 
@@ -140,6 +140,16 @@ def test_rejects_bad_frames(random_weights: Path) -> None:
     for bad in (np.zeros((10, 10), np.uint8), np.zeros((10, 10, 3), np.float32), np.zeros((10, 10, 4), np.uint8)):
         with pytest.raises(ValueError, match="uint8 RGB"):
             stream.push(bad)
+
+
+def test_default_model_size_is_the_size_the_weights_were_trained_at(random_weights: Path, tmp_path: Path) -> None:
+    assert RecurrentGammaMethod(weights=random_weights, device="cpu").model_size == 64  # its card says 64
+    shipped = RecurrentGammaMethod(device="cpu")
+    assert shipped.model_size == DEFAULT_MODEL_SIZE == shipped.weights.input_size == 48
+    torch.save(GammaNet().state_dict(), tmp_path / "release-style.pth")  # the authors' format: no card
+    assert RecurrentGammaMethod(weights=tmp_path / "release-style.pth", device="cpu").model_size == DEFAULT_MODEL_SIZE
+    assert RecurrentGammaMethod(weights=random_weights, model_size=" Auto ", device="cpu").model_size == 64
+    assert RecurrentGammaMethod(weights=random_weights, model_size=48, device="cpu").model_size == 48  # asked for
 
 
 def test_model_size_options(random_weights: Path) -> None:

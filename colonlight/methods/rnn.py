@@ -97,7 +97,9 @@ class RecurrentGammaMethod(Method):
 
     Args:
         weights: a ``.safetensors`` (ours) or ``.pth`` (the authors') file; ``None`` = the shipped default.
-        model_size: the network's square input side; ``None`` or ``"full"`` feeds the full-resolution frame.
+        model_size: the network's square input side; ``None`` or ``"full"`` feeds the full-resolution frame;
+            ``"auto"`` (the default) is the size the weights were trained at, from their card, else
+            ``DEFAULT_MODEL_SIZE`` (the authors' ``.pth`` has no card).
         device: ``auto | cpu | cuda | cuda:N``.
         seeds: leading frames passed through unchanged while the state builds (2 in the release).
     """
@@ -107,13 +109,15 @@ class RecurrentGammaMethod(Method):
     def __init__(
         self,
         weights: str | Path | LoadedWeights | None = None,
-        model_size: int | str | None = DEFAULT_MODEL_SIZE,
+        model_size: int | str | None = "auto",
         device: str = "auto",
         seeds: int = SEED_FRAMES,
     ) -> None:
         self.device = resolve_device(device)
         self.weights = weights if isinstance(weights, LoadedWeights) else load_weights(weights)
         self.weights.net.to(self.device).eval()
+        if isinstance(model_size, str) and model_size.strip().lower() == "auto":
+            model_size = self.weights.input_size or DEFAULT_MODEL_SIZE
         self.model_size = parse_model_size(model_size)
         if seeds < 0:
             raise ValueError(f"seeds must be >= 0, got {seeds}")
