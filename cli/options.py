@@ -15,8 +15,8 @@ Weights: Optional[Path] = typer.Option(
 )
 ModelSize = typer.Option(
     None, "--model-size", envvar="COLONLIGHT_MODEL_SIZE",
-    help="Network input size in pixels, or 'full' for full-resolution input (the release's way). Default: the size "
-         "the weights were trained at (their card; 48 for the shipped model), else 48.",
+    help="Network input size in pixels, 'full' for full-resolution input (the release's way), or 'auto' (the "
+         "default): the size the weights were trained at (their card; 48 for the shipped model), else 48.",
 )
 Debug = typer.Option(False, "--debug", envvar="COLONLIGHT_DEBUG", help="Show tracebacks of errors.")
 Quiet = typer.Option(False, "--quiet", "-q", envvar="COLONLIGHT_QUIET", help="No live display: one line per clip, for logs.")

@@ -33,6 +33,7 @@ from safetensors.torch import load_file, save_file
 from .atomic import atomic_path, write_json_atomic
 from .checkpoint import load_weights, save_weights
 from .errors import InputError
+from .methods.rnn import DEFAULT_MODEL_SIZE
 from .model import GammaNet, correct, parameter_count
 from .sources import clip_frames
 
@@ -44,7 +45,7 @@ SEEDS = 2
 class TrainConfig:
     """Everything that determines a training run (recorded in the model card)."""
 
-    size: int = 48
+    size: int = DEFAULT_MODEL_SIZE  # train at the size inference uses
     seq_len: int = 10
     stride: int = 5
     batch: int = 4

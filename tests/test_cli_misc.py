@@ -73,3 +73,14 @@ def test_info_shows_the_default_model_card() -> None:
     # the shipped model is trained at the size it is run at
     assert card["name"] == "colonlight-rnn" and card["input_size"] == card["training"]["size"] == DEFAULT_MODEL_SIZE
     assert "synthetic" in card["training"]["data"] and card["training"]["history"]
+
+
+def test_train_defaults_to_the_inference_size() -> None:
+    import inspect
+
+    from colonlight_cli.train import train_cmd
+
+    from colonlight.methods.rnn import DEFAULT_MODEL_SIZE
+    from colonlight.train import TrainConfig
+
+    assert inspect.signature(train_cmd).parameters["size"].default.default == TrainConfig().size == DEFAULT_MODEL_SIZE

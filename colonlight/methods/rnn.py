@@ -116,9 +116,7 @@ class RecurrentGammaMethod(Method):
         self.device = resolve_device(device)
         self.weights = weights if isinstance(weights, LoadedWeights) else load_weights(weights)
         self.weights.net.to(self.device).eval()
-        if isinstance(model_size, str) and model_size.strip().lower() == "auto":
-            model_size = self.weights.input_size or DEFAULT_MODEL_SIZE
-        self.model_size = parse_model_size(model_size)
+        self.model_size = parse_model_size(model_size, trained_at=self.weights.input_size)
         if seeds < 0:
             raise ValueError(f"seeds must be >= 0, got {seeds}")
         self.seeds = seeds
@@ -138,14 +136,18 @@ class RecurrentGammaMethod(Method):
         return {"name": self.weights.name, "sha256": self.weights.sha256}
 
 
-def parse_model_size(value: int | str | None) -> int | None:
-    """``"full"``/``None`` -> ``None``; a positive int (or its text) -> that int; anything else -> ValueError."""
-    if value is None or (isinstance(value, str) and value.strip().lower() == "full"):
+def parse_model_size(value: int | str | None, trained_at: int | None = None) -> int | None:
+    """``"full"``/``None`` -> ``None``; ``"auto"`` -> ``trained_at`` (the weights' card) or ``DEFAULT_MODEL_SIZE``;
+    a positive int (or its text) -> that int; anything else -> ValueError."""
+    word = value.strip().lower() if isinstance(value, str) else None
+    if value is None or word == "full":
         return None
+    if word == "auto":
+        return trained_at or DEFAULT_MODEL_SIZE
     try:
         size = int(value)
     except (TypeError, ValueError):
-        raise ValueError(f"model size must be a positive integer or 'full', got {value!r}") from None
+        raise ValueError(f"model size must be a positive integer, 'full' or 'auto', got {value!r}") from None
     if size < 8:
         raise ValueError(f"model size must be at least 8 pixels, got {size}")
     return size
