@@ -1,0 +1,16 @@
+"""Bounds on what one clip may ask of a machine, shared by the CLI and the service (one place for each).
+
+A frame of ``w x h`` pixels costs ``3 w h`` bytes as RGB and about as much again while it is decoded, resized and
+encoded, so the pixel cap bounds memory per frame whatever the input claims to be; the fps cap bounds how many
+output frames one second of input can become.
+"""
+
+from __future__ import annotations
+
+#: Largest frame accepted (width x height), checked from the stream header before any frame is decoded.
+#: 4096 x 4096 admits UHD and DCI 4K video (8.3 and 8.8 Mpx) with room to spare; an 8000 x 8000 "bomb" is refused.
+DEFAULT_MAX_PIXELS = 4096 * 4096
+#: Highest extraction rate accepted (frames per second of output); 0 means "every source frame".
+MAX_FPS = 240.0
+#: Environment variable that overrides :data:`DEFAULT_MAX_PIXELS` in the CLI and the service alike.
+MAX_PIXELS_ENV = "COLONLIGHT_MAX_PIXELS"
