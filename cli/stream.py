@@ -161,7 +161,7 @@ def stream(
         _quiet_stdout()
     if summary.error:
         error_line(summary.error)
-    if not quiet or summary.error:
+    if summary.connections and (not quiet or summary.error):  # a source never opened: its error line is all
         _summary(summary)
     if output is not None and summary.frames_out:
         console.print(f"outputs: {output}")

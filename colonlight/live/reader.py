@@ -101,6 +101,7 @@ class StreamReader:
 
     def _connections(self) -> None:
         backoff = BACKOFF_START_S
+        self.notify(f"{self.spec.text}: waiting for frames")
         while not self.stop.is_set():
             try:
                 container, stream = open_source(self.spec, self.timeout_s)
@@ -119,9 +120,12 @@ class StreamReader:
                 self._read(container, stream)
                 what = f"{self.spec.text}: source ended"
             except InputError as exc:
-                if not self.reconnect:
-                    raise
+                if not self.reconnect and self.summary.frames_decoded == decoded_before:
+                    raise  # never delivered a frame: an error, not the end of a stream
                 what = str(exc)
+                if not self.reconnect:  # a live source that stops sending has ended (UDP has no other end)
+                    self.ended = f"source lost: {exc}"
+                    return
             finally:
                 container.close()
             if not self.reconnect or self.stop.is_set():

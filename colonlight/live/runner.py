@@ -191,7 +191,7 @@ class LiveStream:
                 self._emit(stream.flush(), waiting)
                 if self.reader.error is not None:
                     raise self.reader.error
-                self.summary.end = self.reader.ended or "source ended"
+                self.summary.end = self._stop_reason if self._stop.is_set() else (self.reader.ended or "source ended")
         except PipeClosed as exc:
             self.summary.end = str(exc)
         except ColonlightError as exc:

@@ -37,6 +37,8 @@ class LatencyStats:
             return None
         rank = max(1, int(np.ceil(q / 100.0 * self.count)))
         k = int(np.searchsorted(np.cumsum(self._bins), rank))
+        if k >= len(self._bins) - 1:  # the overflow bin: only the maximum is known
+            return self.max_s
         return min((k + 1) * BIN_S, self.max_s)
 
     @property
