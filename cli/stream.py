@@ -54,6 +54,9 @@ def _summary(summary: Any) -> None:
         f"latency arrival -> output: p50 {ms(summary.latency_p50_ms)} ms, p95 {ms(summary.latency_p95_ms)} ms, "
         f"max {ms(summary.latency_max_ms)} ms", soft_wrap=True,
     )
+    if summary.behind_max_s >= 0.5:
+        console.print(f"[yellow]decoding fell up to {summary.behind_max_s:.1f} s behind the source's clock[/] "
+                      "(the machine could not keep up; that backlog waited before the decoder)", soft_wrap=True)
     note = f"ended: {summary.end}" if summary.end != "error" else "ended by an error"
     if summary.frames_damaged:
         note += f"; {summary.frames_damaged} undecodable packets skipped"

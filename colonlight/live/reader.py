@@ -88,6 +88,7 @@ class StreamReader:
         self._timeline_end = 0.0  # where the last segment ended on the stream's timeline (seconds)
         self._last_arrival: float | None = None  # perf_counter of the last decoded frame
         self._pace_origin: float | None = None  # perf_counter at timeline 0, for --realtime
+        self._ahead_max: float | None = None  # max over frames of (timeline time - arrival time): see _track_lag
 
     # ------------------------------------------------------------------------------------------ thread body
 
@@ -201,6 +202,7 @@ class StreamReader:
                     self._pace(time_s)
                 now = time.perf_counter()
                 self._last_arrival = now
+                self._track_lag(time_s, now)
                 held[count] = _Held(frame, time_s, time.time(), now)
                 count += 1
                 self.summary.frames_decoded += 1
@@ -226,6 +228,17 @@ class StreamReader:
                 yield from frames
         except (av.error.FFmpegError, OSError) as exc:
             raise source_error(self.spec, exc, self.summary.frames_decoded) from exc
+
+    def _track_lag(self, time_s: float, now: float) -> None:
+        """How far decoding has fallen behind the source's clock: a backlog waiting in the socket or pipe, which
+        arrival-to-output latency cannot see. Frames that keep up arrive at a steady offset from their timestamps;
+        the reference is the largest offset seen (so the burst FFmpeg's probing releases at the start is not a lag)."""
+        if not self.spec.is_live and not self.realtime:
+            return
+        ahead = time_s - now
+        if self._ahead_max is None or ahead > self._ahead_max:
+            self._ahead_max = ahead
+        self.summary.behind_max_s = round(max(self.summary.behind_max_s, self._ahead_max - ahead), 3)
 
     def _pace(self, time_s: float) -> None:
         """--realtime: release a frame when its time comes, as if a camera were producing the file now."""

@@ -57,6 +57,7 @@ class StreamSummary:
     frames_dropped: int = 0  # chosen frames discarded because processing was behind (or at a stop)
     frames_damaged: int = 0  # packets the decoder could not use (joined mid-GOP, lost UDP data)
     connections: int = 0
+    behind_max_s: float = 0.0  # the most the decoder fell behind the source's own clock (live sources; see reader)
     seconds: float = 0.0
     end: str = ""  # why it ended: source ended | stopped | duration reached | consumer closed the pipe | an error
     error: str | None = None
