@@ -132,7 +132,7 @@ def _check_log(records: list[dict], fps_choice: list[int] | None = None) -> None
 # ---------------------------------------------------------------------------------------------- network
 
 
-def test_udp_mpegts_stream(tmp_path: Path, live_clip: Path, fps_choice: list[int]) -> None:
+def test_udp_mpegts_stream(tmp_path: Path, live_clip: Path) -> None:
     port = _port(socket.SOCK_DGRAM)
     out = tmp_path / "out"
     proc = subprocess.Popen(_colonlight(f"udp://127.0.0.1:{port}", "-o", str(out), "--timeout", "1.5"),
@@ -145,7 +145,7 @@ def test_udp_mpegts_stream(tmp_path: Path, live_clip: Path, fps_choice: list[int
     text = err.done()
     assert "source lost" in text and "frames in" in text
     records = _log(out)
-    _check_log(records, fps_choice)
+    _check_log(records)  # (which frame comes first depends on when the socket caught the stream: not checked here)
     assert len(records) >= 30  # 54 at 18 fps; a few may go to joining mid-GOP and the opening burst
     assert sum(1 for r in records if r.get("seed")) == 2  # one recurrent state: two seeds for the whole stream
     summary = _summary(out)
@@ -352,3 +352,16 @@ def test_outputs_of_an_earlier_stream_are_not_mixed(tmp_path: Path, live_clip: P
     again = subprocess.run(_colonlight(*args), env=_env(), capture_output=True, timeout=60)
     assert again.returncode == 1 and b"already holds a stream's outputs" in again.stderr
     assert subprocess.run(_colonlight(*args, "--overwrite"), env=_env(), capture_output=True, timeout=60).returncode == 0
+
+
+def test_stream_benchmark_short_version(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The benchmark's CI version: a few seconds of a small live feed, end to end (its numbers are not judged here:
+    timing targets are for the benchmark run on a quiet machine)."""
+    from benchmarks import stream_realtime
+
+    monkeypatch.setenv("COLONLIGHT_BENCH_CACHE", str(tmp_path))
+    report = stream_realtime.main(["--seconds", "3", "--size", "320x180", "--configs", "log+pipe+jpg"])
+    row = next(line for line in report.splitlines() if line.startswith("| log+pipe+jpg"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    frames_in, frames_out, dropped = (int(c) for c in cells[2:5])
+    assert frames_in >= 45 and frames_out + dropped == frames_in  # 3 s at 18 fps = 54
