@@ -13,6 +13,7 @@ import typer
 
 from colonlight.batch import MethodSpec, network_threads, reuse_frame_memory
 from colonlight.errors import ColonlightError
+from colonlight.limits import MAX_FPS
 from colonlight.methods import available_methods, is_available
 
 from . import options
@@ -101,8 +102,8 @@ def stream(
         raise typer.BadParameter(f"unknown method {method!r}; available: {', '.join(available_methods())}", param_hint="--method")
     if fmt not in ("png", "jpg"):
         raise typer.BadParameter("choose png or jpg", param_hint="--format")
-    if not 0 <= fps <= 240:
-        raise typer.BadParameter("must be within 0..240", param_hint="--fps")
+    if not 0 <= fps <= MAX_FPS:
+        raise typer.BadParameter(f"must be within 0..{MAX_FPS:g}", param_hint="--fps")
 
     from colonlight.live import PIPE_FORMATS, LiveStream, OutputPlan, StreamOptions, parse_source, prepare_output_dir
 

@@ -126,13 +126,14 @@ def _cause(exc: BaseException) -> str:
 def open_source(spec: SourceSpec, timeout_s: float) -> tuple[Any, Any]:
     """Open ``spec`` and pick its video stream; one InputError line on failure.
 
-    ``timeout_s`` bounds opening and every later read (a silent network source raises instead of blocking).
+    ``timeout_s`` bounds opening (but for standard input) and every later read: a silent network source raises
+    instead of blocking.
     """
     kwargs: dict[str, Any] = {"mode": "r", "metadata_errors": "replace", "options": dict(spec.options)}
     if spec.format:
         kwargs["format"] = spec.format
-    if spec.kind != "file":
-        kwargs["timeout"] = (timeout_s, timeout_s)
+    if spec.kind != "file":  # standard input may wait for its producer to start: only reads time out
+        kwargs["timeout"] = (None if spec.kind == "stdin" else timeout_s, timeout_s)
     try:
         container = av.open(spec.url, **kwargs)
     except (av.error.FFmpegError, OSError, ValueError, UnicodeError) as exc:
