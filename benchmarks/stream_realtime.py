@@ -77,6 +77,15 @@ def _rss_mib(pid: int) -> float | None:
     return None
 
 
+def _cpu_s(pid: int) -> float | None:
+    """User + system CPU seconds of ``pid`` (all threads) so far."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def run_stream(feed: Path, out: Path, seconds: float, extra: list[str]) -> dict:
     """One live run; returns colonlight's summary plus the memory samples."""
     colonlight = Path(sys.executable).parent / "colonlight"
@@ -109,11 +118,13 @@ def run_stream(feed: Path, out: Path, seconds: float, extra: list[str]) -> dict:
     os.close(w)
     t0 = time.perf_counter()
     rss: list[tuple[float, float]] = []
+    cpu: list[tuple[float, float]] = []  # (seconds since the feed started, colonlight's CPU seconds)
     load = [os.getloadavg()[0]]
     while proc.poll() is None:
-        value = _rss_mib(proc.pid)
-        if value is not None:
+        value, used = _rss_mib(proc.pid), _cpu_s(proc.pid)
+        if value is not None and used is not None:
             rss.append((time.perf_counter() - t0, value))
+            cpu.append((time.perf_counter() - t0, used))
         time.sleep(1.0)
         if len(rss) % 30 == 0:
             load.append(os.getloadavg()[0])
@@ -123,7 +134,7 @@ def run_stream(feed: Path, out: Path, seconds: float, extra: list[str]) -> dict:
         raise RuntimeError(f"colonlight stream failed ({proc.returncode}):\n" + "".join(log[-20:]))
     summary = json.loads((out / "stream.json").read_text())["summary"]
     records = [json.loads(line) for line in (out / "gammas.jsonl").read_text().splitlines()]
-    return {"summary": summary, "records": records, "rss": rss, "load": load}
+    return {"summary": summary, "records": records, "rss": rss, "cpu": cpu, "load": load}
 
 
 def _row(label: str, result: dict) -> list[object]:
@@ -139,10 +150,13 @@ def _row(label: str, result: dict) -> list[object]:
     half = len(values) // 2
     slope = np.polyfit(times[half:], values[half:], 1)[0] * 600 if len(values) - half >= 3 else float("nan")
     p = (lambda a, q: f"{np.percentile(a, q):.1f}" if len(a) else "-")
+    cpu = result["cpu"]
+    # CPU share while streaming (between the first and the last sample: the model load before the feed is excluded)
+    share = (cpu[-1][1] - cpu[0][1]) / (cpu[-1][0] - cpu[0][0]) if len(cpu) >= 2 and cpu[-1][0] > cpu[0][0] else float("nan")
     return [label, f"{s['seconds']:.0f}", s["frames_in"], s["frames_out"], s["frames_dropped"], steady_drops,
             p(lat, 50), p(lat, 95), f"{lat.max():.1f}" if len(lat) else "-", p(steady, 95),
             f"{tenth:.0f}", f"{values[-1]:.0f}" if len(values) else "-", f"{values.max():.0f}" if len(values) else "-",
-            f"{slope:+.1f}", f"{s.get('behind_max_s', 0.0):.2f}", f"{min(result['load']):.1f}-{max(result['load']):.1f}"]
+            f"{slope:+.1f}", f"{s.get('behind_max_s', 0.0):.2f}", f"{100 * share:.0f}%", f"{min(result['load']):.1f}-{max(result['load']):.1f}"]
 
 
 def main(argv: list[str] | None = None) -> str:
@@ -172,7 +186,7 @@ def main(argv: list[str] | None = None) -> str:
         "",
         markdown_table(["outputs", "s", "in", "out", "dropped", f"dropped after {WARMUP_S:g} s", "p50 ms", "p95 ms",
                         "max ms", f"p95 after {WARMUP_S:g} s", "RSS MiB at 10%", "RSS at end", "RSS max",
-                        "RSS slope MiB/10 min (2nd half)", "decoder behind live, max s", "load avg"], rows),
+                        "RSS slope MiB/10 min (2nd half)", "decoder behind live, max s", "CPU (of one core)", "load avg"], rows),
         "",
         "targets: p95 <= 50 ms and no drops on a quiet machine; memory flat. "
         f"{os.cpu_count()} cores; load average (1 / 5 / 15 min) at the end: "

@@ -208,7 +208,8 @@ class LiveStream:
             except (ColonlightError, OSError) as exc:
                 self.summary.error = self.summary.error or f"closing the outputs failed: {exc}"
             self.summary.seconds = round(time.perf_counter() - t0, 3)
-            self._count_drops()
+            # every chosen frame that was not output was dropped: by the hand-off, or in hand when the stream stopped
+            self.summary.frames_dropped = max(self.handoff.dropped, self.summary.frames_in - self.summary.frames_out)
             self.summary.take_latency(self.latency)
             if self.plan.out_dir is not None and self._opened:
                 write_json_atomic(self.plan.out_dir / SUMMARY_FILE, self.record())
