@@ -25,6 +25,7 @@ import sys
 import tempfile
 import threading
 import time
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -159,6 +160,58 @@ def _row(label: str, result: dict) -> list[object]:
             f"{slope:+.1f}", f"{s.get('behind_max_s', 0.0):.2f}", f"{100 * share:.0f}%", f"{min(result['load']):.1f}-{max(result['load']):.1f}"]
 
 
+def stage_costs(feed: Path, frames: int = 90) -> list[list[object]]:
+    """CPU milliseconds per frame of each stage, as `colonlight stream` runs it, one stage at a time in this process
+    (process CPU time, so a busy machine slows the wall clock but hardly these numbers)."""
+    import av
+    import torch
+    from av.video.reformatter import VideoReformatter
+
+    from colonlight.frames import encode_image
+    from colonlight.live.outputs import Y4mPipe
+    from colonlight.methods import create_method
+
+    torch.set_num_threads(1)
+    with av.open(str(feed)) as container:
+        stream = container.streams.video[0]
+        stream.codec_context.thread_type = "SLICE"
+        t = time.process_time()
+        decoded = []
+        for frame in container.decode(stream):
+            decoded.append(frame)
+            if len(decoded) == frames:
+                break
+        decode = (time.process_time() - t) / len(decoded)
+    reformatter = VideoReformatter()
+    t = time.process_time()
+    rgb = [reformatter.reformat(f, format="rgb24").to_ndarray() for f in decoded]
+    convert = (time.process_time() - t) / len(rgb)
+    method_stream = create_method("rnn", device="cpu").stream()
+    method_stream.push(rgb[0])
+    t = time.process_time()
+    enhanced = [r.frame for f in rgb for r in method_stream.push(f)]
+    enhance = (time.process_time() - t) / len(rgb)
+    with open(os.devnull, "wb") as sink:
+        pipe = Y4mPipe(sink, Fraction(18))
+        t = time.process_time()
+        for i, f in enumerate(enhanced):
+            pipe.write(i, f)
+        y4m = (time.process_time() - t) / len(enhanced)
+    t = time.process_time()
+    for f in enhanced[:30]:
+        encode_image(f, "jpg", 95)
+    jpeg = (time.process_time() - t) / 30
+    rate_out = 18
+    rows = [["decode (every source frame)", f"{1000 * decode:.1f}", SRC_FPS, f"{100 * decode * SRC_FPS:.0f}%"],
+            ["to RGB (chosen frames)", f"{1000 * convert:.1f}", rate_out, f"{100 * convert * rate_out:.0f}%"],
+            ["enhance: resize + network + gamma LUT", f"{1000 * enhance:.1f}", rate_out, f"{100 * enhance * rate_out:.0f}%"],
+            ["y4m: to YUV 4:2:0 + write", f"{1000 * y4m:.1f}", rate_out, f"{100 * y4m * rate_out:.0f}%"],
+            ["JPEG q95 (with --format jpg)", f"{1000 * jpeg:.1f}", rate_out, f"{100 * jpeg * rate_out:.0f}%"]]
+    main_loop = enhance + y4m
+    rows.append(["processing loop per frame (enhance + y4m)", f"{1000 * main_loop:.1f}", "", ""])
+    return rows
+
+
 def main(argv: list[str] | None = None) -> str:
     parser = argparse.ArgumentParser(prog="python -m benchmarks stream", description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=SHORT_SECONDS, help="length of each live run")
@@ -178,6 +231,7 @@ def main(argv: list[str] | None = None) -> str:
         if not feed.is_file():
             with tempfile.TemporaryDirectory(dir=cache) as part:
                 os.replace(make_feed(Path(part) / feed.name, width, height), feed)
+        costs = stage_costs(feed)
         for name in args.configs.split(","):
             result = run_stream(feed, work / name, seconds, configs[name])
             rows.append(_row(name, result))
@@ -188,7 +242,13 @@ def main(argv: list[str] | None = None) -> str:
                         "max ms", f"p95 after {WARMUP_S:g} s", "RSS MiB at 10%", "RSS at end", "RSS max",
                         "RSS slope MiB/10 min (2nd half)", "decoder behind live, max s", "CPU (of one core)", "load avg"], rows),
         "",
-        "targets: p95 <= 50 ms and no drops on a quiet machine; memory flat. "
+        "targets: p95 <= 50 ms and no drops on a quiet machine; memory flat.",
+        "",
+        f"### CPU cost per frame, {width}x{height} (process CPU time, one stage at a time)",
+        "",
+        markdown_table(["stage", "CPU ms/frame", "frames/s", "share of one core"], costs),
+        "",
+        "Latency on a machine with a core to spare is about the processing loop's time per frame. "
         f"{os.cpu_count()} cores; load average (1 / 5 / 15 min) at the end: "
         + " / ".join(f"{x:.1f}" for x in os.getloadavg()) + ".",
     ])

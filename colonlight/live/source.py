@@ -28,7 +28,7 @@ _V4L2_SYSFS = Path("/sys/class/video4linux")
 _NETWORK_DEFAULTS: dict[str, dict[str, str]] = {
     "rtsp": {"rtsp_transport": "tcp"},
     "rtsps": {"rtsp_transport": "tcp"},
-    "udp": {"overrun_nonfatal": "1", "fifo_size": "100000"},
+    "udp": {"overrun_nonfatal": "1"},
 }
 
 
