@@ -365,3 +365,30 @@ def test_stream_benchmark_short_version(tmp_path: Path, monkeypatch: pytest.Monk
     cells = [c.strip() for c in row.strip("|").split("|")]
     frames_in, frames_out, dropped = (int(c) for c in cells[2:5])
     assert frames_in >= 45 and frames_out + dropped == frames_in  # 3 s at 18 fps = 54
+
+
+def test_realtime_file_is_paced_at_its_own_rate(tmp_path: Path, live_clip: Path) -> None:
+    """--realtime releases each frame no earlier than its time: arrivals span at least the clip's 3 s."""
+    out = tmp_path / "out"
+    proc = subprocess.run(_colonlight(str(live_clip), "--realtime", "-o", str(out), "-m", "none", "--no-frames", "-q"),
+                          env=_env(), capture_output=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr.decode()
+    records = _log(out)
+    first, last = records[0], records[-1]
+    assert last["arrival"] - first["arrival"] >= last["source_time_s"] - first["source_time_s"] - 0.02 > 2.8
+
+
+def test_raw_h264_on_stdin_without_timestamps(tmp_path: Path, live_clip: Path, fps_choice: list[int]) -> None:
+    """A raw H.264 elementary stream has no timestamps: frames are timed by the stream's frame rate (30 fps from
+    its SPS), so the choice at 18 fps is the same as for the clip with timestamps. `--drop never`: a pipe fed as
+    fast as possible loses nothing."""
+    raw = tmp_path / "live.h264"
+    subprocess.run([ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-i", str(live_clip), "-c", "copy", "-f", "h264",
+                    str(raw)], check=True)
+    out = tmp_path / "out"
+    with open(raw, "rb") as fh:
+        proc = subprocess.run(_colonlight("-", "-o", str(out), "-m", "none", "--drop", "never", "-q"), env=_env(),
+                              stdin=fh, capture_output=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr.decode()
+    found = _frames_index(out)
+    assert [found[k] for k in sorted(found)] == fps_choice
