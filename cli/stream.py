@@ -14,6 +14,12 @@ import typer
 from colonlight.batch import MethodSpec, network_threads, reuse_frame_memory
 from colonlight.errors import ColonlightError
 from colonlight.limits import MAX_FPS
+from colonlight.live import (
+    DEFAULT_BUFFER, DEFAULT_TIMEOUT_S, PIPE_FORMATS, LiveStream, OutputPlan, StreamOptions, parse_source,
+    prepare_output_dir,
+)
+from colonlight.live.reader import BACKOFF_MAX_S, BACKOFF_START_S
+from colonlight.video import DEFAULT_FPS
 from colonlight.methods import available_methods, is_available
 
 from . import options
@@ -68,7 +74,7 @@ def stream(
     source: Optional[str] = typer.Argument(None, metavar="SRC", help="/dev/videoN, rtsp:// udp:// tcp:// http:// URL, a video file, or - for a container stream (MPEG-TS, Matroska, raw H.264) on standard input."),
     output: Optional[Path] = typer.Option(None, "--output", "-o", help="Folder for frames/, gammas.jsonl (one line per frame, flushed) and stream.json."),
     pipe: Optional[str] = typer.Option(None, "--pipe", help="Also write the enhanced frames to standard output: y4m | mpegts."),
-    fps: float = typer.Option(18.0, "--fps", envvar="COLONLIGHT_FPS", help="Output rate (FFmpeg fps-filter frame choice); 0 keeps every frame."),
+    fps: float = typer.Option(DEFAULT_FPS, "--fps", envvar="COLONLIGHT_FPS", help="Output rate (FFmpeg fps-filter frame choice); 0 keeps every frame."),
     method: str = options.Method,
     weights: Optional[Path] = options.Weights,
     model_size: Optional[str] = options.ModelSize,
@@ -80,9 +86,9 @@ def stream(
     keep: int = typer.Option(0, "--keep", min=0, help="Keep only the newest N frames in OUTPUT/frames/ (0: all)."),
     realtime: bool = typer.Option(False, "--realtime", help="Play a file at its own rate, as a live source (default: as fast as possible, no drops)."),
     drop: str = typer.Option("auto", "--drop", help="When processing falls behind: oldest (drop the oldest waiting frame) | newest | never (wait; a file's default) | auto."),
-    buffer: int = typer.Option(2, "--buffer", min=1, max=64, help="Frames that may wait for processing before drops start."),
-    reconnect: bool = typer.Option(False, "--reconnect", help="Reopen a lost or ended network stream or device, with backoff (0.5 s doubling to 8 s); the recurrent state is kept."),
-    timeout: float = typer.Option(5.0, "--timeout", min=0.1, help="Seconds without data before a live source counts as lost."),
+    buffer: int = typer.Option(DEFAULT_BUFFER, "--buffer", min=1, max=64, help="Frames that may wait for processing before drops start."),
+    reconnect: bool = typer.Option(False, "--reconnect", help=f"Reopen a lost or ended network stream or device, with backoff ({BACKOFF_START_S:g} s doubling to {BACKOFF_MAX_S:g} s); the recurrent state is kept."),
+    timeout: float = typer.Option(DEFAULT_TIMEOUT_S, "--timeout", min=0.1, help="Seconds without data before a live source counts as lost."),
     duration: Optional[float] = typer.Option(None, "--duration", min=0.0, help="Stop after this many seconds."),
     input_format: Optional[str] = typer.Option(None, "--input-format", help="Force FFmpeg's demuxer (e.g. mpegts, matroska, h264, v4l2)."),
     input_option: list[str] = typer.Option([], "--input-option", help="KEY=VALUE passed to FFmpeg when opening SRC (repeatable), e.g. video_size=1280x720, framerate=30, rtsp_transport=udp."),
@@ -104,8 +110,6 @@ def stream(
         raise typer.BadParameter("choose png or jpg", param_hint="--format")
     if not 0 <= fps <= MAX_FPS:
         raise typer.BadParameter(f"must be within 0..{MAX_FPS:g}", param_hint="--fps")
-
-    from colonlight.live import PIPE_FORMATS, LiveStream, OutputPlan, StreamOptions, parse_source, prepare_output_dir
 
     if pipe is not None and pipe not in PIPE_FORMATS:
         raise typer.BadParameter(f"choose {' or '.join(PIPE_FORMATS)}", param_hint="--pipe")
