@@ -71,7 +71,7 @@ def _summary(summary: Any) -> None:
 
 
 def stream(
-    source: Optional[str] = typer.Argument(None, metavar="SRC", help="/dev/videoN, rtsp:// udp:// tcp:// http:// URL, a video file, or - for a container stream (MPEG-TS, Matroska, raw H.264) on standard input."),
+    source: Optional[str] = typer.Argument(None, metavar="SRC", help="/dev/videoN, a udp:// tcp:// http:// rtsp:// rtmp:// URL, a video file, or - for a container stream (MPEG-TS, Matroska, raw H.264) on standard input."),
     output: Optional[Path] = typer.Option(None, "--output", "-o", help="Folder for frames/, gammas.jsonl (one line per frame, flushed) and stream.json."),
     pipe: Optional[str] = typer.Option(None, "--pipe", help="Also write the enhanced frames to standard output: y4m | mpegts."),
     fps: float = typer.Option(DEFAULT_FPS, "--fps", envvar="COLONLIGHT_FPS", help="Output rate (FFmpeg fps-filter frame choice); 0 keeps every frame."),
@@ -81,7 +81,7 @@ def stream(
     gamma: Optional[float] = typer.Option(None, "--gamma", help="Exponent for --method gamma (out = in ** gamma)."),
     device: str = options.Device,
     frames: bool = typer.Option(True, "--frames/--no-frames", help="Write enhanced frames into OUTPUT/frames/ (with --output)."),
-    fmt: str = typer.Option("jpg", "--format", "-f", help="Frame image format: jpg (default: a 1080p PNG costs ~40 ms, too much at 18 fps on 2 cores) | png."),
+    fmt: str = typer.Option("jpg", "--format", "-f", help="Frame image format: jpg (default: at 1080p a PNG costs ~20x the CPU of a JPEG, too much at 18 fps on 2 cores) | png."),
     quality: int = typer.Option(95, "--quality", min=1, max=100, help="JPEG quality."),
     keep: int = typer.Option(0, "--keep", min=0, help="Keep only the newest N frames in OUTPUT/frames/ (0: all)."),
     realtime: bool = typer.Option(False, "--realtime", help="Play a file at its own rate, as a live source (default: as fast as possible, no drops)."),

@@ -19,7 +19,7 @@ import av
 from ..errors import InputError
 
 #: URL schemes read as network streams (FFmpeg protocols).
-NETWORK_SCHEMES = frozenset({"rtsp", "rtsps", "rtmp", "rtmps", "udp", "rtp", "tcp", "http", "https", "srt"})
+NETWORK_SCHEMES = frozenset({"rtsp", "rtsps", "rtmp", "rtmps", "udp", "rtp", "tcp", "http", "https"})
 #: The SRC that means "a container stream on standard input".
 STDIN = "-"
 _V4L2_SYSFS = Path("/sys/class/video4linux")
