@@ -1,4 +1,4 @@
-"""Run the benchmarks: `python -m benchmarks [input_size] [enhance] [service] [quality_gate] [objective_landscape]` (default: all).
+"""Run the benchmarks: `python -m benchmarks [input_size] [enhance] [service] [quality_gate] [objective_landscape] [onnx_step]` (default: all).
 
 Options after a name go to that benchmark: `python -m benchmarks quality_gate --json gate.json`.
 """
@@ -15,6 +15,7 @@ BENCHMARKS = {
     "service": "benchmarks.service_load",
     "quality_gate": "benchmarks.quality_gate",
     "objective_landscape": "benchmarks.objective_landscape",
+    "onnx_step": "benchmarks.onnx_step",
 }
 
 

@@ -28,6 +28,7 @@ def enhance(
     model_size: Optional[str] = options.ModelSize,
     gamma: Optional[float] = typer.Option(None, "--gamma", help="Exponent for --method gamma (out = in ** gamma)."),
     device: str = options.Device,
+    runtime: str = options.Runtime,
     frames: bool = typer.Option(True, "--frames/--no-frames", help="Write enhanced frame images."),
     video: bool = typer.Option(False, "--video/--no-video", help="Also write enhanced.mp4 (H.264, yuv420p, faststart)."),
     fmt: str = typer.Option("png", "--format", "-f", envvar="COLONLIGHT_FORMAT", help="Frame image format: png | jpg."),
@@ -57,7 +58,7 @@ def enhance(
                                 camera=None if cam is None else (cam.name, cam.text))
     except ValueError as exc:
         raise typer.BadParameter(str(exc)) from exc
-    spec = MethodSpec.of(method, **options.method_options(method, weights, model_size, device, gamma))
+    spec = MethodSpec.of(method, **options.method_options(method, weights, model_size, device, gamma, runtime))
     # Loading the model imports torch (~10^5 long-lived objects): the cyclic GC, which would walk them again and
     # again meanwhile, is off until they are frozen below (-0.1 s CPU of a ~1 s load).
     gc.disable()

@@ -21,6 +21,7 @@ from ..curves import apply_gamma
 from ..device import resolve_device
 from ..model import State
 from .base import FrameResult, Method, MethodStream, check_frame
+from .rnn_onnx import make_step
 
 #: Network input side in pixels. Chosen by measurement (README, "Choosing the network input size").
 DEFAULT_MODEL_SIZE = 48
@@ -76,7 +77,7 @@ class RecurrentGammaStream(MethodStream):
         m = self._method
         x = to_tensor(network_input(frame, m.model_size), m.device)
         with torch.inference_mode():
-            a, self._state = m.weights.net.step(x, self._state)
+            a, self._state = m.step(x, self._state)
         return float(a.item())
 
     def push(self, frame: np.ndarray) -> list[FrameResult]:
@@ -102,6 +103,7 @@ class RecurrentGammaMethod(Method):
             ``DEFAULT_MODEL_SIZE`` (the authors' ``.pth`` has no card).
         device: ``auto | cpu | cuda | cuda:N``.
         seeds: leading frames passed through unchanged while the state builds (2 in the release).
+        runtime: ``torch`` or ``onnxruntime`` (the step on ONNX Runtime, CPU only; ``methods/rnn_onnx``).
     """
 
     name = "rnn"
@@ -112,6 +114,7 @@ class RecurrentGammaMethod(Method):
         model_size: int | str | None = "auto",
         device: str = "auto",
         seeds: int = SEED_FRAMES,
+        runtime: str = "torch",
     ) -> None:
         self.device = resolve_device(device)
         self.weights = weights if isinstance(weights, LoadedWeights) else load_weights(weights)
@@ -120,6 +123,8 @@ class RecurrentGammaMethod(Method):
         if seeds < 0:
             raise ValueError(f"seeds must be >= 0, got {seeds}")
         self.seeds = seeds
+        self.runtime = runtime
+        self.step = make_step(self.weights, self.model_size, self.device, runtime)  # net.step or ONNX Runtime's
 
     def stream(self) -> RecurrentGammaStream:
         return RecurrentGammaStream(self)
@@ -130,6 +135,7 @@ class RecurrentGammaMethod(Method):
             "seeds": self.seeds,
             "gamma_range": [GAMMA_MIN, GAMMA_MAX],
             "device": str(self.device),
+            **({"runtime": self.runtime} if self.runtime != "torch" else {}),
         }
 
     def model_info(self) -> dict[str, Any]:
