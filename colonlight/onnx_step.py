@@ -170,11 +170,15 @@ def export_model_bytes(weights: LoadedWeights, size: int) -> tuple[bytes, StepSi
     sig, described = step_signature(weights, size)
     graph = StepGraph(weights.net.cpu().eval()).eval()
     example = (torch.zeros(sig.frame_shape), *(torch.zeros(s) for s in sig.state_shapes))
-    with _quiet_exporter():
-        program = torch.onnx.export(
-            graph, example, input_names=sig.input_names, output_names=sig.output_names,
-            dynamo=True, external_data=False, verbose=False,
-        )
+    try:
+        with _quiet_exporter():
+            program = torch.onnx.export(
+                graph, example, input_names=sig.input_names, output_names=sig.output_names,
+                dynamo=True, external_data=False, verbose=False,
+            )
+    except Exception as exc:  # noqa: BLE001 - torch's exporter raises many kinds; the user gets one line
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise ExportError(f"{weights.path}: torch could not export the network to ONNX ({first[:200]})") from exc
     if program is None:  # pragma: no cover - torch returns the program for dynamo=True
         raise ExportError("torch.onnx.export returned no program")
     return program.model_proto.SerializeToString(), sig, described

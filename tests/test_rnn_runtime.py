@@ -48,10 +48,15 @@ def test_enhance_on_onnxruntime_gives_torchs_gammas_and_caches_the_graph(
     assert np.max(np.abs(gammas["onnxruntime"] - gammas["torch"])) <= 1e-4
     cached = list(cache_dir().glob("*.onnx"))
     assert len(cached) == 1 and cached[0].name.startswith(records["torch"]["model"]["sha256"][:16] + "-48px-")
-    # A second build reads the cached graph (no export): the same answers.
-    stream = RecurrentGammaMethod(device="cpu", runtime="onnxruntime").stream()
+    # A second build reads the cached graph (no export); a damaged cache is exported again and replaced.
     frame = np.full((120, 160, 3), 90, np.uint8)
-    assert abs(stream.predict_a(frame) - RecurrentGammaMethod(device="cpu").stream().predict_a(frame)) <= 1e-5
+    expected = RecurrentGammaMethod(device="cpu").stream().predict_a(frame)
+    before = cached[0].stat().st_mtime_ns
+    assert abs(RecurrentGammaMethod(device="cpu", runtime="onnxruntime").stream().predict_a(frame) - expected) <= 1e-5
+    assert cached[0].stat().st_mtime_ns == before
+    cached[0].write_bytes(b"not an onnx graph")
+    assert abs(RecurrentGammaMethod(device="cpu", runtime="onnxruntime").stream().predict_a(frame) - expected) <= 1e-5
+    assert cached[0].read_bytes()[:4] != b"not "
 
 
 def test_what_onnxruntime_cannot_run_is_refused_in_one_line(tmp_path: Path, onnx_cache: Path,

@@ -35,14 +35,23 @@ def cache_dir() -> Path:
     return Path(root) / "onnx"
 
 
-def _graph_bytes(weights: LoadedWeights, size: int) -> bytes:
-    """The step graph for these weights and size: from the cache, else exported, checked and cached."""
+def cached_graph_path(weights: LoadedWeights, size: int) -> Path:
+    """Where the step graph for these weights and size is kept."""
     tag = f"{weights.sha256[:16]}-{size}px-colonlight{__version__}-torch{torch.__version__}".replace("+", "_")
-    path = cache_dir() / f"{tag}.onnx"
+    return cache_dir() / f"{tag}.onnx"
+
+
+def _session(weights: LoadedWeights, size: int) -> Any:
+    """An ONNX Runtime session for the step: from the cached graph, else (absent or unreadable) a new one."""
     try:
-        return path.read_bytes()
-    except OSError:
-        pass
+        return cpu_session(cached_graph_path(weights, size).read_bytes())
+    except Exception:  # noqa: BLE001 - absent, or damaged by something else: export again
+        return cpu_session(_new_graph(weights, size))
+
+
+def _new_graph(weights: LoadedWeights, size: int) -> bytes:
+    """Export the step graph, check it against torch and cache it."""
+    path = cached_graph_path(weights, size)
     data, sig, _ = export_model_bytes(weights, size)
     rng = np.random.default_rng(0)
     frames = [rng.random(sig.frame_shape, dtype=np.float32) * (0.3 + 0.1 * i) for i in range(6)]
@@ -65,7 +74,7 @@ class OnnxStep:
         if self.signature.head_names != ("a",):
             raise ValueError(f"--runtime onnxruntime runs networks with one output 'a'; these weights have "
                              f"{', '.join(self.signature.head_names)}")
-        self.session = cpu_session(_graph_bytes(weights, size))
+        self.session = _session(weights, size)
 
     def __call__(self, frame: torch.Tensor, state: Any) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
         sig = self.signature
