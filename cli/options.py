@@ -48,7 +48,7 @@ def method_options(
     if method == "rnn" and runtime == "onnxruntime":
         opts["runtime"] = runtime
     elif runtime == "onnxruntime":
-        raise typer.BadParameter(f"--runtime onnxruntime applies only to --method rnn")
+        raise typer.BadParameter("--runtime onnxruntime applies only to --method rnn")
     if method == "gamma" and gamma is not None:
         opts["gamma"] = gamma
     elif gamma is not None:
