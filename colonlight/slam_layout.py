@@ -46,6 +46,8 @@ COLMAP_MODELS: dict[str, tuple[int, bool]] = {
 }
 
 Size = tuple[int, int]  # (width, height)
+#: A resize whose x and y scales differ by more than this changes the aspect ratio (more than whole-pixel rounding).
+_ASPECT_TOLERANCE = 0.01
 
 
 @dataclass(frozen=True)
@@ -195,11 +197,11 @@ def _rescale_colmap(cam: CameraFile, to: Size) -> str:
             raise InputError(f"{cam.name}: cannot rescale COLMAP model {model} (unknown to colonlight)")
         sx, sy = to[0] / w0, to[1] / h0
         p = [float(t) for t in tokens[4:]]
-        if COLMAP_MODELS[model][1]:  # one focal length: only an aspect-keeping resize can be expressed
-            if abs(sx - sy) > 1e-3 * max(sx, sy):
+        if COLMAP_MODELS[model][1]:  # one focal length: as COLMAP's Camera::Rescale, the mean of the two scales
+            if abs(sx - sy) > _ASPECT_TOLERANCE * max(sx, sy):
                 raise InputError(f"{cam.name}: {model} has one focal length; {w0}x{h0} -> {to[0]}x{to[1]} "
                                  "changes the aspect ratio")
-            p[0], p[1], p[2] = p[0] * sx, p[1] * sx, p[2] * sy
+            p[0], p[1], p[2] = p[0] * (sx + sy) / 2, p[1] * sx, p[2] * sy
         else:  # COLMAP's pixel centres are at +0.5, so focal lengths and the principal point scale alike
             p[0], p[1], p[2], p[3] = p[0] * sx, p[1] * sy, p[2] * sx, p[3] * sy
         lines[i] = " ".join([tokens[0], model, str(to[0]), str(to[1]), *(_fmt(v) for v in p)])

@@ -172,3 +172,20 @@ def test_camera_for_frames_copies_as_is_or_rescales_from_the_source_size() -> No
         parse_camera("1 PINHOLE 640 480 500 500 320\n", "c.txt")
     with pytest.raises(InputError, match="not a valid DSO"):
         parse_camera("Pinhole 1 1 1 1 0\n640 480\n", "d.txt")
+
+
+@pytest.mark.parametrize("line", [
+    "1 OPENCV 640 480 500 510 320.5 240.25 0.1 -0.05 0.001 0.002",
+    "1 SIMPLE_RADIAL 640 480 480 319 241 0.02",
+    "1 PINHOLE 1350 1080 900 905 674.5 539.5",
+    "1 OPENCV_FISHEYE 1350 1080 600 601 676 541 0.1 0.01 -0.002 0.0003",
+])
+def test_colmap_rescale_agrees_with_colmaps_own(line: str) -> None:
+    pycolmap = pytest.importorskip("pycolmap", reason="pycolmap (the eval extra) is not installed")
+    _, model, w, h, *params = line.split()
+    to = (int(w) * 2 // 3, int(h) * 2 // 3)
+    ours = rescale_camera(parse_camera(line + "\n", "cameras.txt"), to).split()
+    theirs = pycolmap.Camera(model=model, width=int(w), height=int(h), params=[float(p) for p in params])
+    theirs.rescale(*to)
+    assert ours[1:4] == [model, str(to[0]), str(to[1])]
+    assert [float(p) for p in ours[4:]] == pytest.approx(list(theirs.params), rel=1e-9)
