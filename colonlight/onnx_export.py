@@ -21,7 +21,8 @@ import torch
 from . import __version__
 from .atomic import write_bytes_atomic, write_json_atomic
 from .checkpoint import LoadedWeights
-from .methods.rnn import GAMMA_MAX, GAMMA_MIN, SEED_FRAMES
+from .correction import LOG_GAIN_SPAN, LOG_GAMMA_SPAN
+from .methods.rnn import GAIN_MAX, GAIN_MIN, GAMMA_MAX, GAMMA_MIN, SEED_FRAMES
 from .onnx_step import ExportError, StepSignature, compare_with_torch, cpu_session, export_model_bytes
 
 SIDECAR_FORMAT = "colonlight-onnx-step"
@@ -50,6 +51,8 @@ def sidecar_record(
 ) -> dict[str, Any]:
     """Everything a host needs around the graph (see the README's "C++ SLAM host" section)."""
     card = weights.card
+    seeds = weights.seed_frames if weights.seed_frames is not None else SEED_FRAMES
+    gain_gamma = getattr(weights.net, "head", "gamma") == "gain-gamma" and sig.head_names == ("z",)
     outputs = [
         {**d, "shape": list(shape), "dtype": "float32"} for d, shape in zip(described, sig.head_shapes)
     ] + [
@@ -83,14 +86,15 @@ def sidecar_record(
         ],
         "outputs": outputs,
         "seed_frames": {
-            "count": SEED_FRAMES,
-            "rule": f"the first {SEED_FRAMES} frames of a clip run the step (they build the state) but are passed "
+            "count": seeds,
+            "rule": f"the first {seeds} frames of a clip run the step (they build the state) but are passed "
                     "through unchanged (gamma 1.0)",
         },
-        "gamma": card.get("gamma") or _default_gamma_rule(sig),
+        "gamma": card.get("gamma") or _default_gamma_rule(sig, gain_gamma),
         "lut": {
-            "build": "lut[v] = round(255 * (v / 255) ^ gamma) for v = 0..255, in double precision, rounding half "
-                     "to even (std::nearbyint in the default rounding mode), as uint8",
+            "build": f"lut[v] = round(255 * {'min(1, gain * (v / 255) ^ gamma)' if gain_gamma else '(v / 255) ^ gamma'})"
+                     " for v = 0..255, in double precision, rounding half to even (std::nearbyint in the default "
+                     "rounding mode), as uint8",
             "apply": "out = lut[in] for every sample of every channel of the full-resolution uint8 frame "
                      "(cv::LUT); out = in ^ gamma on [0, 1] values, gamma < 1 brightens",
         },
@@ -102,8 +106,19 @@ def sidecar_record(
     }
 
 
-def _default_gamma_rule(sig: StepSignature) -> dict[str, Any]:
-    """How colonlight turns the output ``a`` into the gamma it applies (``methods/rnn.clamp_gamma``)."""
+def _default_gamma_rule(sig: StepSignature, gain_gamma: bool) -> dict[str, Any]:
+    """How colonlight turns the output into the correction it applies (``methods/rnn.clamp_gamma`` and
+    ``clamp_gain_gamma``, ``correction.gain_gamma_values``)."""
+    if gain_gamma:
+        return {
+            "from_output": "z",
+            "formula": f"gamma = exp({LOG_GAMMA_SPAN} * tanh(z[0])), gain = exp({LOG_GAIN_SPAN} * tanh(z[1])); "
+                       "out = min(1, gain * in ^ gamma) on [0, 1] values",
+            "range": [GAMMA_MIN, GAMMA_MAX],
+            "gain_range": [GAIN_MIN, GAIN_MAX],
+            "clamping": "gamma and gain are each clamped into their range; z not finite -> gain 1, gamma 1, frame "
+                        "unchanged",
+        }
     if "a" not in sig.head_names:
         return {"note": "the weights' card does not say how these outputs become a correction (its 'gamma' entry)"}
     return {

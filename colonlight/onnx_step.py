@@ -33,6 +33,11 @@ DEFAULT_OUTPUT = {
     "name": "a",
     "meaning": "the network's raw output; the gamma applied is 1 / a (see 'gamma')",
 }
+#: The same for the gain-gamma head's one (1, 2) output (colonlight.correction).
+GAIN_GAMMA_OUTPUT = {
+    "name": "z",
+    "meaning": "the network's raw outputs (z0, z1); they give a gamma and a gain (see 'gamma')",
+}
 
 
 class ExportError(ColonlightError):
@@ -108,8 +113,11 @@ def _card_outputs(card: dict[str, Any]) -> list[dict[str, Any]]:
     return described
 
 
-def describe_outputs(card: dict[str, Any], dict_names: Sequence[str | None]) -> list[dict[str, Any]]:
-    """One description per head output: from the card when it lists as many valid names, else defaults."""
+def describe_outputs(
+    card: dict[str, Any], dict_names: Sequence[str | None], head: str | None = None
+) -> list[dict[str, Any]]:
+    """One description per head output: from the card when it lists as many valid names, else from the
+    network's head (``gamma``: ``a``; ``gain-gamma``: ``z``), else generic names."""
     n = len(dict_names)
     from_card = _card_outputs(card)
     if len(from_card) == n and all(_NAME.match(str(d.get("name", ""))) for d in from_card):
@@ -117,7 +125,7 @@ def describe_outputs(card: dict[str, Any], dict_names: Sequence[str | None]) -> 
     if all(name is not None and _NAME.match(name) for name in dict_names):
         return [{"name": name, "meaning": "not described by the weights' card"} for name in dict_names]  # type: ignore[misc]
     if n == 1:
-        return [dict(DEFAULT_OUTPUT)]
+        return [dict(GAIN_GAMMA_OUTPUT if head == "gain-gamma" else DEFAULT_OUTPUT)]
     return [{"name": f"out{i}", "meaning": "not described by the weights' card"} for i in range(n)]
 
 
@@ -129,7 +137,7 @@ def step_signature(weights: LoadedWeights, size: int) -> tuple[StepSignature, li
         _, state = _split_step(net.step(frame, None))
         head, _ = _split_step(net.step(frame, state))
     dict_names, tensors = _flatten_head(head)
-    described = describe_outputs(weights.card, dict_names)
+    described = describe_outputs(weights.card, dict_names, getattr(net, "head", None))
     state_names = ("h", "c") if len(state) == 2 else tuple(f"state{i}" for i in range(len(state)))
     sig = StepSignature(
         size=size,

@@ -161,3 +161,27 @@ def test_usage_and_input_errors_are_one_line(tmp_path: Path) -> None:
     result = runner.invoke(app, ["export", "-o", str(tmp_path / "y.onnx"), "--weights", str(bad)])
     assert result.exit_code == 1 and str(bad) in result.output and "Traceback" not in result.output
     assert not (tmp_path / "y.onnx").exists() and not sidecar_path(tmp_path / "y.onnx").exists()
+
+
+def test_the_gain_gamma_head_exports_as_z_with_its_correction_and_runs_on_onnxruntime(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("COLONLIGHT_CACHE_DIR", str(tmp_path / "cache"))
+    torch.manual_seed(2)
+    net = GammaNet(head="gain-gamma").eval()
+    with torch.no_grad():
+        net.out_linear.weight.normal_(0.0, 0.5)  # away from the identity start, so the outputs move
+    weights = LoadedWeights(net=net, name="gg", sha256="1" * 64, path=tmp_path / "gg.safetensors",
+                            card={"input_size": 32, "seed_frames": 0})
+    record = export_onnx(weights, tmp_path / "gg.onnx", size=32)
+    assert [o["name"] for o in record["outputs"]] == ["z", "h_out", "c_out"] and record["outputs"][0]["shape"] == [1, 2]
+    assert record["gamma"]["from_output"] == "z" and "gain" in record["gamma"]["formula"]
+    assert record["seed_frames"]["count"] == 0 and "min(1, gain" in record["lut"]["build"]
+    rng = np.random.default_rng(4)
+    frames = [(rng.random((40, 40, 3)) * 255).astype(np.uint8) for _ in range(6)]
+    torch_stream = RecurrentGammaMethod(weights=weights, device="cpu").stream()
+    onnx_stream = RecurrentGammaMethod(weights=weights, device="cpu", runtime="onnxruntime").stream()
+    for f in frames:
+        ours, theirs = torch_stream.push(f)[0], onnx_stream.push(f)[0]
+        assert np.max(np.abs(np.array(ours.info["z"]) - np.array(theirs.info["z"]))) <= TOLERANCE
+        assert abs(ours.gamma - theirs.gamma) <= 1e-4 and abs(ours.info["gain"] - theirs.info["gain"]) <= 1e-4

@@ -66,13 +66,14 @@ def _new_graph(weights: LoadedWeights, size: int) -> bytes:
 
 
 class OnnxStep:
-    """Called like ``GammaNet.step``: ``(frame (1, 3, S, S) CPU tensor, state or None) -> (a, state)``; ``a`` is a
-    ``(1,)`` array, the state an opaque tuple of arrays to hand back with the next frame."""
+    """Called like ``GammaNet.step``: ``(frame (1, 3, S, S) CPU tensor, state or None) -> (out, state)``; ``out``
+    is the head's array (``a`` ``(1,)``, or ``z`` ``(1, 2)``), the state an opaque tuple of arrays to hand back
+    with the next frame."""
 
     def __init__(self, weights: LoadedWeights, size: int) -> None:
         self.signature: StepSignature = step_signature(weights, size)[0]
-        if self.signature.head_names != ("a",):
-            raise ValueError(f"--runtime onnxruntime runs networks with one output 'a'; these weights have "
+        if len(self.signature.head_names) != 1:
+            raise ValueError(f"--runtime onnxruntime runs networks with one output tensor; these weights have "
                              f"{', '.join(self.signature.head_names)}")
         self.session = _session(weights, size)
 
