@@ -1,4 +1,4 @@
-"""Run the benchmarks: `python -m benchmarks [input_size] [enhance] [service] [stream] [quality_gate] [objective_landscape]` (default: all).
+"""Run the benchmarks: `python -m benchmarks [input_size] [enhance] [service] [stream] [quality_gate] [objective_landscape] [onnx_step]` (default: all).
 
 Options after a name go to that benchmark: `python -m benchmarks quality_gate --json gate.json`.
 """
@@ -16,6 +16,7 @@ BENCHMARKS = {
     "stream": "benchmarks.stream_realtime",
     "quality_gate": "benchmarks.quality_gate",
     "objective_landscape": "benchmarks.objective_landscape",
+    "onnx_step": "benchmarks.onnx_step",
 }
 
 

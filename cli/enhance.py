@@ -13,6 +13,7 @@ from colonlight.batch import MethodSpec, _method_for, default_workers, discover_
 from colonlight.errors import ColonlightError
 from colonlight.methods import available_methods, is_available
 from colonlight.pipeline import ClipOptions
+from colonlight.slam_layout import read_camera
 
 from . import options
 from .display import BatchDisplay, console, error_line, summary
@@ -27,6 +28,7 @@ def enhance(
     model_size: Optional[str] = options.ModelSize,
     gamma: Optional[float] = typer.Option(None, "--gamma", help="Exponent for --method gamma (out = in ** gamma)."),
     device: str = options.Device,
+    runtime: str = options.Runtime,
     frames: bool = typer.Option(True, "--frames/--no-frames", help="Write enhanced frame images."),
     video: bool = typer.Option(False, "--video/--no-video", help="Also write enhanced.mp4 (H.264, yuv420p, faststart)."),
     fmt: str = typer.Option("png", "--format", "-f", envvar="COLONLIGHT_FORMAT", help="Frame image format: png | jpg."),
@@ -34,11 +36,12 @@ def enhance(
     pattern: Optional[str] = typer.Option(None, "--pattern", help="Glob on clip paths/names, e.g. '*.mp4' or 'site1/*'."),
     workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1, envvar="COLONLIGHT_WORKERS", help="Clips processed in parallel (default: one per two cores)."),
     cluster: Optional[str] = typer.Option(None, "--cluster", envvar="COLONLIGHT_CLUSTER", help="Dask scheduler address (tcp://HOST:8786) to run clips on."),
+    camera: Optional[Path] = typer.Option(None, "--camera", help="DSO camera.txt or COLMAP cameras.txt to copy beside each clip's frames (checked against their size)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Redo clips whose outputs are complete (default: skip them)."),
     quiet: bool = options.Quiet,
     debug: bool = options.Debug,
 ) -> None:
-    """Enhance every clip under INPUTS into OUTPUT/<clip>/ (frames/, gammas.json, enhanced.mp4) plus OUTPUT/manifest.json."""
+    """Enhance every clip under INPUTS into OUTPUT/<clip>/ (frames/, gammas.json, enhanced.mp4, times.txt, rgb.txt) plus OUTPUT/manifest.json."""
     if not is_available(method):  # imports this method only (all of them only to list them in the error)
         raise typer.BadParameter(f"unknown method {method!r}; available: {', '.join(available_methods())}", param_hint="--method")
     if fmt not in ("png", "jpg"):
@@ -46,10 +49,16 @@ def enhance(
     if fps < 0:
         raise typer.BadParameter("must be >= 0", param_hint="--fps")
     try:
-        clip_opts = ClipOptions(fps=fps or None, frames=frames, video=video, format=fmt, quality=quality)
+        cam = None if camera is None else read_camera(camera)
+    except ColonlightError as exc:
+        error_line(str(exc))
+        raise typer.Exit(2) from None
+    try:
+        clip_opts = ClipOptions(fps=fps or None, frames=frames, video=video, format=fmt, quality=quality,
+                                camera=None if cam is None else (cam.name, cam.text))
     except ValueError as exc:
         raise typer.BadParameter(str(exc)) from exc
-    spec = MethodSpec.of(method, **options.method_options(method, weights, model_size, device, gamma))
+    spec = MethodSpec.of(method, **options.method_options(method, weights, model_size, device, gamma, runtime))
     # Loading the model imports torch (~10^5 long-lived objects): the cyclic GC, which would walk them again and
     # again meanwhile, is off until they are frozen below (-0.1 s CPU of a ~1 s load).
     gc.disable()

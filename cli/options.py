@@ -18,12 +18,18 @@ ModelSize = typer.Option(
     help="Network input size in pixels, 'full' for full-resolution input (the release's way), or 'auto' (the "
          "default): the size the weights were trained at (their card; 48 for the shipped model), else 48.",
 )
+Runtime = typer.Option(
+    "torch", "--runtime", envvar="COLONLIGHT_RUNTIME",
+    help="Where the rnn method's network step runs: torch, or onnxruntime (CPU; the export extra; measured faster "
+         "on small CPUs, see the README's benchmarks).",
+)
 Debug = typer.Option(False, "--debug", envvar="COLONLIGHT_DEBUG", help="Show tracebacks of errors.")
 Quiet = typer.Option(False, "--quiet", "-q", envvar="COLONLIGHT_QUIET", help="No live display: one line per clip, for logs.")
 
 
 def method_options(
-    method: str, weights: Path | None, model_size: str | None, device: str, gamma: float | None = None
+    method: str, weights: Path | None, model_size: str | None, device: str, gamma: float | None = None,
+    runtime: str | None = None,
 ) -> dict[str, object]:
     """The keyword options of ``method`` from the CLI's flags (flags a method does not take are refused)."""
     opts: dict[str, object] = {}
@@ -37,6 +43,12 @@ def method_options(
         opts["model_size"] = model_size
     elif model_size is not None:
         raise typer.BadParameter(f"--model-size does not apply to method {method!r}")
+    if runtime not in (None, "torch", "onnxruntime"):
+        raise typer.BadParameter(f"choose torch or onnxruntime, got {runtime!r}", param_hint="--runtime")
+    if method == "rnn" and runtime == "onnxruntime":
+        opts["runtime"] = runtime
+    elif runtime == "onnxruntime":
+        raise typer.BadParameter("--runtime onnxruntime applies only to --method rnn")
     if method == "gamma" and gamma is not None:
         opts["gamma"] = gamma
     elif gamma is not None:

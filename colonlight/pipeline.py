@@ -33,6 +33,7 @@ from .errors import InputError
 from .frames import encode_image
 from .methods.base import FrameResult, Method
 from .provenance import library_versions
+from .slam_layout import camera_setting, clip_camera, write_slam_layout
 from .sources import clip_frames
 from .video import DecodedFrame, VideoWriter
 
@@ -56,6 +57,7 @@ class ClipOptions:
     format: str = "png"  # png | jpg
     quality: int = 95  # JPEG quality
     folder_fps: float = 18.0  # the rate assumed for a folder of frames
+    camera: tuple[str, str] | None = None  # (file name, text) of a DSO/COLMAP camera file to copy (slam_layout)
 
     def __post_init__(self) -> None:
         if self.format not in ("png", "jpg"):
@@ -84,6 +86,7 @@ def settings_record(method: Method, opts: ClipOptions) -> dict[str, Any]:
         "parameters": method.parameters(),
         "fps": opts.fps or None,
         "outputs": {"frames": opts.frames, "video": opts.video, "format": opts.format, "quality": opts.quality},
+        **camera_setting(opts.camera),
     }
 
 
@@ -263,6 +266,7 @@ def enhance_clip(
         yield from decoded
 
     try:
+        camera = clip_camera(opts.camera, first_size)  # a camera file for another size fails here, before any write
         for f in chain():
             if f.image.shape[:2] != first_size:
                 raise InputError(
@@ -284,6 +288,7 @@ def enhance_clip(
     if not opts.video:
         (out_dir / VIDEO_FILE).unlink(missing_ok=True)
 
+    write_slam_layout(out_dir, records, opts.format if opts.frames else None, camera)
     settings = settings_record(method, opts)
     gammas = {
         "clip": clip_name,

@@ -22,6 +22,7 @@ from ..curves import apply_gamma, apply_lut, gain_gamma_lut
 from ..device import resolve_device
 from ..model import State
 from .base import FrameResult, Method, MethodStream, check_frame
+from .rnn_onnx import make_step
 
 #: Network input side in pixels. Chosen by measurement (README, "Choosing the network input size").
 DEFAULT_MODEL_SIZE = 48
@@ -91,7 +92,7 @@ class RecurrentGammaStream(MethodStream):
         m = self._method
         x = to_tensor(network_input(frame, m.model_size), m.device)
         with torch.inference_mode():
-            out, self._state = m.weights.net.step(x, self._state)
+            out, self._state = m.step(x, self._state)
         return [float(v) for v in out.reshape(-1).tolist()]
 
     def predict_a(self, frame: np.ndarray) -> float:
@@ -129,6 +130,7 @@ class RecurrentGammaMethod(Method):
         device: ``auto | cpu | cuda | cuda:N``.
         seeds: leading frames passed through unchanged while the state builds; ``None``: the card's
             ``seed_frames`` (0 for the gain-gamma default, trained to correct every frame), else 2 (the release).
+        runtime: ``torch`` or ``onnxruntime`` (the step on ONNX Runtime, CPU only; ``methods/rnn_onnx``).
     """
 
     name = "rnn"
@@ -139,6 +141,7 @@ class RecurrentGammaMethod(Method):
         model_size: int | str | None = "auto",
         device: str = "auto",
         seeds: int | None = None,
+        runtime: str = "torch",
     ) -> None:
         self.device = resolve_device(device)
         self.weights = weights if isinstance(weights, LoadedWeights) else load_weights(weights)
@@ -149,6 +152,8 @@ class RecurrentGammaMethod(Method):
         if seeds < 0:
             raise ValueError(f"seeds must be >= 0, got {seeds}")
         self.seeds = seeds
+        self.runtime = runtime
+        self.step = make_step(self.weights, self.model_size, self.device, runtime)  # net.step or ONNX Runtime's
 
     def stream(self) -> RecurrentGammaStream:
         return RecurrentGammaStream(self)
@@ -159,6 +164,7 @@ class RecurrentGammaMethod(Method):
             "seeds": self.seeds,
             "gamma_range": [GAMMA_MIN, GAMMA_MAX],
             "device": str(self.device),
+            **({"runtime": self.runtime} if self.runtime != "torch" else {}),
         }
         if self.weights.head != "gamma":  # older outputs' records stay as they were
             params["head"] = self.weights.head

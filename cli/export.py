@@ -1,0 +1,59 @@
+"""``colonlight export``: the network's step as ONNX (state as explicit inputs and outputs) plus a JSON sidecar."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from colonlight.errors import ColonlightError
+
+from . import options
+from .display import console, error_line
+
+
+def export(
+    output: Path = typer.Option(..., "--output", "-o", help="The .onnx file to write; its sidecar is OUTPUT.json."),
+    weights: Optional[Path] = options.Weights,
+    model_size: Optional[str] = typer.Option(
+        None, "--model-size", envvar="COLONLIGHT_MODEL_SIZE",
+        help="Network input size in pixels the graph is fixed at, or 'auto' (the default): the size the weights "
+             "were trained at (their card; 48 for the shipped model), else 48. 'full' cannot be exported.",
+    ),
+    debug: bool = options.Debug,
+) -> None:
+    """Write the step graph (frame, h, c -> a, h_out, c_out) for ONNX Runtime hosts, checked against torch."""
+    try:
+        from colonlight.checkpoint import load_weights
+        from colonlight.methods.rnn import parse_model_size
+        from colonlight.onnx_export import export_onnx, sidecar_path
+
+        loaded = load_weights(weights)
+        try:
+            size = parse_model_size(model_size or "auto", trained_at=loaded.input_size)
+        except ValueError as exc:
+            raise typer.BadParameter(str(exc), param_hint="--model-size") from None
+        if size is None:
+            raise typer.BadParameter("the graph has a fixed input size: give a number or 'auto'", param_hint="--model-size")
+        record = export_onnx(loaded, output, size)
+    except ColonlightError as exc:
+        if debug:
+            raise
+        error_line(str(exc))
+        raise typer.Exit(1) from None
+    except OSError as exc:
+        if debug:
+            raise
+        error_line(f"{output}: cannot write ({exc.strerror or exc})")
+        raise typer.Exit(1) from None
+    check = record["check"]["onnxruntime_vs_torch_max_abs_diff"]
+    outputs = ", ".join(o["name"] for o in record["outputs"])
+    console.print(f"wrote {output} (opset {record['onnx']['opset']}, input {size}x{size}, outputs {outputs})")
+    console.print(f"wrote {sidecar_path(output)}")
+    if check is not None:
+        console.print(f"checked against torch: max |difference| {check:.2g}")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("export")(export)

@@ -1,0 +1,170 @@
+"""``colonlight export``'s engine: the step graph written as ``MODEL.onnx`` with a JSON sidecar, for hosts without
+Python (a C++ SLAM system).
+
+The sidecar (``MODEL.onnx.json``) says everything a host needs around the graph: the input size and normalisation,
+the initial state, the seed frames, the gamma range and clamping rule, how to build and apply the lookup table,
+the outputs (from the weights' card where it describes them), and which model (name, sha256) and colonlight made
+it. Every export is checked against torch with ONNX Runtime before anything is written.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import platform
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from . import __version__
+from .atomic import write_bytes_atomic, write_json_atomic
+from .checkpoint import LoadedWeights
+from .correction import LOG_GAIN_SPAN, LOG_GAMMA_SPAN
+from .methods.rnn import GAIN_MAX, GAIN_MIN, GAMMA_MAX, GAMMA_MIN, SEED_FRAMES
+from .onnx_step import ExportError, StepSignature, compare_with_torch, cpu_session, export_model_bytes
+
+SIDECAR_FORMAT = "colonlight-onnx-step"
+SIDECAR_VERSION = 1
+#: Largest |torch - ONNX Runtime| allowed in any head output by the check that follows every export.
+EXPORT_TOLERANCE = 1e-5
+_CHECK_FRAMES = 8
+
+
+def sidecar_path(onnx_path: Path) -> Path:
+    """The sidecar beside ``model.onnx``: ``model.onnx.json`` (never ``model.json``, a weights card's name)."""
+    onnx_path = Path(onnx_path)
+    return onnx_path.with_name(onnx_path.name + ".json")
+
+
+def _check_frames(size: int, n: int = _CHECK_FRAMES, seed: int = 0) -> list[np.ndarray]:
+    """Smooth random frames with a brightness ramp: enough to exercise every layer and the recurrence."""
+    rng = np.random.default_rng(seed)
+    base = rng.random((1, 3, size, size), dtype=np.float32)
+    return [np.clip(base * (0.3 + 0.6 * i / max(1, n - 1)), 0, 1).astype(np.float32) for i in range(n)]
+
+
+def sidecar_record(
+    weights: LoadedWeights, sig: StepSignature, described: list[dict[str, Any]], onnx_file: str, onnx_sha256: str,
+    opset: int, check_max_diff: float | None,
+) -> dict[str, Any]:
+    """Everything a host needs around the graph (see the README's "C++ SLAM host" section)."""
+    card = weights.card
+    seeds = weights.seed_frames if weights.seed_frames is not None else SEED_FRAMES
+    gain_gamma = getattr(weights.net, "head", "gamma") == "gain-gamma" and sig.head_names == ("z",)
+    outputs = [
+        {**d, "shape": list(shape), "dtype": "float32"} for d, shape in zip(described, sig.head_shapes)
+    ] + [
+        {"name": f"{n}_out", "shape": list(s), "dtype": "float32", "meaning": f"the new state: feed it as '{n}' "
+         "with the next frame"} for n, s in zip(sig.state_names, sig.state_shapes)
+    ]
+    return {
+        "format": SIDECAR_FORMAT,
+        "format_version": SIDECAR_VERSION,
+        "onnx": {"file": onnx_file, "sha256": onnx_sha256, "opset": opset},
+        "model": {
+            "name": weights.name,
+            "sha256": weights.sha256,
+            "file": weights.path.name,
+            "version": card.get("version"),
+            "trained_input_size": card.get("input_size"),
+        },
+        "colonlight_version": __version__,
+        "exported_with": {"torch": torch.__version__, "python": platform.python_version()},
+        "input_size": sig.size,
+        "inputs": [
+            {
+                "name": "frame", "shape": list(sig.frame_shape), "dtype": "float32", "layout": "NCHW, channels R, G, B",
+                "normalisation": "value / 255: uint8 0..255 -> float 0..1; no mean or std",
+                "resize": f"the full frame reduced to {sig.size}x{sig.size}: halved with a Gaussian pyramid "
+                          f"(cv::pyrDown) while its shorter side is at least {4 * sig.size}, then area-averaged "
+                          "(cv::resize, INTER_AREA); the aspect ratio is not kept",
+            },
+            *({"name": n, "shape": list(s), "dtype": "float32", "initial": "zeros at the start of every clip or "
+               "stream, then the previous step's output"} for n, s in zip(sig.state_names, sig.state_shapes)),
+        ],
+        "outputs": outputs,
+        "seed_frames": {
+            "count": seeds,
+            "rule": f"the first {seeds} frames of a clip run the step (they build the state) but are passed "
+                    "through unchanged (gamma 1.0)",
+        },
+        "gamma": card.get("gamma") or _default_gamma_rule(sig, gain_gamma),
+        "lut": {
+            "build": f"lut[v] = round(255 * {'min(1, gain * (v / 255) ^ gamma)' if gain_gamma else '(v / 255) ^ gamma'})"
+                     " for v = 0..255, in double precision, rounding half to even (std::nearbyint in the default "
+                     "rounding mode), as uint8",
+            "apply": "out = lut[in] for every sample of every channel of the full-resolution uint8 frame "
+                     "(cv::LUT); out = in ^ gamma on [0, 1] values, gamma < 1 brightens",
+        },
+        "check": {
+            "onnxruntime_vs_torch_max_abs_diff": check_max_diff,
+            "tolerance": EXPORT_TOLERANCE,
+            "frames": _CHECK_FRAMES,
+        },
+    }
+
+
+def _default_gamma_rule(sig: StepSignature, gain_gamma: bool) -> dict[str, Any]:
+    """How colonlight turns the output into the correction it applies (``methods/rnn.clamp_gamma`` and
+    ``clamp_gain_gamma``, ``correction.gain_gamma_values``)."""
+    if gain_gamma:
+        return {
+            "from_output": "z",
+            "formula": f"gamma = exp({LOG_GAMMA_SPAN} * tanh(z[0])), gain = exp({LOG_GAIN_SPAN} * tanh(z[1])); "
+                       "out = min(1, gain * in ^ gamma) on [0, 1] values",
+            "range": [GAMMA_MIN, GAMMA_MAX],
+            "gain_range": [GAIN_MIN, GAIN_MAX],
+            "clamping": "gamma and gain are each clamped into their range; z not finite -> gain 1, gamma 1, frame "
+                        "unchanged",
+        }
+    if "a" not in sig.head_names:
+        return {"note": "the weights' card does not say how these outputs become a correction (its 'gamma' entry)"}
+    return {
+        "from_output": "a",
+        "formula": "gamma = 1 / a",
+        "range": [GAMMA_MIN, GAMMA_MAX],
+        "clamping": f"gamma below {GAMMA_MIN} becomes {GAMMA_MIN}, above {GAMMA_MAX} becomes {GAMMA_MAX}; "
+                    "a not finite or a <= 0 (the ReLU's floor: no usable answer) -> gamma 1.0, frame unchanged",
+    }
+
+
+def export_onnx(weights: LoadedWeights, out: Path, size: int, check: bool = True) -> dict[str, Any]:
+    """Write ``out`` (the step graph, weights inside) and its sidecar ``out.json``, both atomically.
+
+    With ``check`` (and onnxruntime installed) the graph is run against torch first; a difference above
+    ``EXPORT_TOLERANCE`` raises :class:`ExportError` and nothing is written. Returns the sidecar record.
+    """
+    out = Path(out)
+    if size < 8:
+        raise ExportError(f"input size must be at least 8 pixels, got {size}")
+    data, sig, described = export_model_bytes(weights, size)
+    import onnx
+
+    opset = next((o.version for o in onnx.load_from_string(data).opset_import if o.domain in ("", "ai.onnx")), 0)
+    worst: float | None = None
+    if check:
+        try:
+            session = cpu_session(data)
+        except ImportError:
+            session = None
+        if session is not None:
+            worst = compare_with_torch(weights, session, sig, _check_frames(size))
+            if not worst <= EXPORT_TOLERANCE:
+                raise ExportError(f"{out}: ONNX Runtime differs from torch by {worst:.3g} (> {EXPORT_TOLERANCE})")
+    record = sidecar_record(weights, sig, described, out.name, hashlib.sha256(data).hexdigest(), opset, worst)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_bytes_atomic(out, data)
+    write_json_atomic(sidecar_path(out), record)
+    return record
+
+
+def read_sidecar(onnx_path: Path) -> dict[str, Any]:
+    """The sidecar of an exported graph (``ExportError`` naming the file if absent or unreadable)."""
+    path = sidecar_path(onnx_path)
+    try:
+        record: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise ExportError(f"{path}: no readable sidecar ({exc})") from None
+    return record
