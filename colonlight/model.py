@@ -80,8 +80,12 @@ class GammaNet(nn.Module):
             elif isinstance(m, nn.BatchNorm2d):
                 nn.init.normal_(m.weight, 1.0, 0.02)
                 nn.init.zeros_(m.bias)
-        if self.head != "gamma":  # start at the identity correction (gain 1, gamma 1): small weights, zero bias
-            nn.init.normal_(self.out_linear.weight, 0.0, 1e-2)
+        if self.head != "gamma":
+            # start at the identity correction (gain 1, gamma 1) with a zero output layer: a random one maps the
+            # features to noise, and the quickest way for training to remove that noise is to kill the features
+            # (seen: every ReLU of the backbone dead within an epoch); from zero, the first steps learn which
+            # features predict the correction instead
+            nn.init.zeros_(self.out_linear.weight)
             nn.init.zeros_(self.out_linear.bias)
 
     def step(self, frame: Tensor, state: State | None = None) -> tuple[Tensor, State]:
