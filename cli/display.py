@@ -36,7 +36,8 @@ def printable(text: str) -> str:
     """``text`` (a message naming paths) as one line any terminal shows as it is.
 
     Bytes of a name that are not UTF-8 (surrogate escapes, as ``os.fsdecode`` gives them) show as ``\\xNN``,
-    control characters (a newline in a file name) as escapes, and ``[`` cannot start rich markup.
+    control characters (a newline in a file name) as escapes, characters the terminal's encoding lacks (``ü``
+    on an ASCII terminal) as ``\\xNN``/``\\uNNNN``, and ``[`` cannot start rich markup.
     """
     try:
         text = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
@@ -46,6 +47,11 @@ def printable(text: str) -> str:
         text = "".join(
             c.encode("unicode_escape").decode("ascii") if unicodedata.category(c) in _UNSHOWN else c for c in text
         )
+    encoding = console.encoding or "utf-8"
+    try:
+        text = text.encode(encoding, "backslashreplace").decode(encoding)
+    except LookupError:  # an encoding Python does not know: keep ASCII
+        text = text.encode("ascii", "backslashreplace").decode("ascii")
     return escape(text)
 
 

@@ -88,7 +88,7 @@ def enhance(
         try:
             failed = _run(inputs, output, spec, clip_opts, pattern, workers, cluster, overwrite, quiet, debug)
         except KeyboardInterrupt:
-            error_line(INTERRUPTED)
+            console.print(INTERRUPTED, markup=False)
             raise typer.Exit(143 if received == [signal.SIGTERM] else 130) from None
     if failed:
         raise typer.Exit(1)
