@@ -25,6 +25,7 @@ import time
 import traceback
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -444,10 +445,54 @@ def _run_pool(
     progress: ProgressFn | None,
     done: Callable[[ClipOutcome], None],
 ) -> None:
-    """The clips on a pool of ``workers`` spawned processes. On any exception here (an interrupt) the workers are
-    killed, the temporaries of unfinished clips removed, and the exception propagates."""
+    """The clips on a pool of ``workers`` spawned processes.
+
+    A worker that dies (the kernel's OOM killer, a crash in a decoder) breaks the whole pool: the clips it took
+    with it are run again, the ones that were running in a pool of one worker, where a second death fails that
+    clip only ("the worker process running this clip died ..."); the rest of the batch goes on in a new pool.
+    Every round settles at least one clip, so this ends. On any exception (an interrupt) the workers are killed, the
+    temporaries of unfinished clips removed, and the exception propagates.
+    """
+    todo = list(jobs)
+    while todo:
+        lost, suspects, death = _pool_round(todo, spec, opts, overwrite, workers, progress, done)
+        if not lost:
+            return
+        isolate = suspects or lost
+        while isolate:  # one worker takes its clips in order: the first one lost is the one it was running
+            isolate, _, death = _pool_round(isolate, spec, opts, overwrite, 1, progress, done)
+            if isolate:
+                guilty, isolate = isolate[0], isolate[1:]
+                done(ClipOutcome(guilty.name, str(guilty.source), "failed",
+                                 error=f"{guilty.source}: the worker process running this clip died ({death})"))
+        todo = [j for j in lost if suspects and j not in suspects]
+
+
+def _death(exitcodes: Sequence[int | None]) -> str:
+    """Why a pool's worker died, from its processes' exit codes (the pool SIGTERMs the others after a death)."""
+    codes = [c for c in exitcodes if c not in (None, 0, -signal.SIGTERM)] or [c for c in exitcodes if c]
+    if not codes:
+        return "it exited"
+    code = codes[0]
+    if code is not None and code < 0:
+        name = signal.Signals(-code).name
+        return f"killed by {name}" + ("; out of memory?" if -code == signal.SIGKILL else "")
+    return f"exit status {code}"
+
+
+def _pool_round(
+    jobs: Sequence[ClipJob],
+    spec: MethodSpec,
+    opts: ClipOptions,
+    overwrite: bool,
+    workers: int,
+    progress: ProgressFn | None,
+    done: Callable[[ClipOutcome], None],
+) -> tuple[list[ClipJob], list[ClipJob], str]:
+    """One pool over ``jobs`` until they are done or the pool breaks. Returns the jobs lost with a broken pool,
+    those of them that were running (or queued to a worker) when it broke, and why the worker died."""
     ctx = mp.get_context("spawn")  # never fork a process that holds torch threads
-    events = ctx.Queue() if progress else None
+    events = ctx.Queue() if progress else None  # one per pool: a dead worker may have held the queue's lock
 
     def drain() -> None:
         while events is not None and progress is not None:
@@ -458,9 +503,12 @@ def _run_pool(
             progress(*item)
 
     before = set(mp.active_children())
+    spawned: list[Any] = []
     pool: ProcessPoolExecutor | None = None
     futures: dict[Future[ClipOutcome], ClipJob] = {}
     finished_jobs: set[str] = set()
+    lost: list[ClipJob] = []
+    suspects: list[ClipJob] = []
     try:
         # Workers start with SIGINT/SIGTERM blocked (they inherit this thread's mask through fork and exec) and
         # unblock them only once their initializer ignores SIGINT: a Ctrl-C never hits a worker's startup.
@@ -473,18 +521,27 @@ def _run_pool(
             )
             for job in jobs:
                 futures[pool.submit(_run_in_worker, job, spec, opts, overwrite)] = job
+            spawned = [p for p in mp.active_children() if p not in before]
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         pending = set(futures)
+        running: set[Future[ClipOutcome]] = set()
+        order = {f: i for i, f in enumerate(futures)}
         while pending:
+            running |= {f for f in pending if f.running()}
             finished = {f for f in pending if f.done()}
             drain()
-            for fut in finished:
+            for fut in sorted(finished, key=order.__getitem__):
                 pending.discard(fut)
                 job = futures[fut]
                 try:
                     outcome = fut.result()
-                except Exception as exc:  # noqa: BLE001 - a worker died: record it, go on
+                except BrokenProcessPool:
+                    lost.append(job)
+                    if fut in running:
+                        suspects.append(job)
+                    continue
+                except Exception as exc:  # noqa: BLE001 - e.g. a result that cannot be unpickled: this clip fails
                     outcome = ClipOutcome(job.name, str(job.source), "failed", error=f"{job.source}: worker failed: {exc}")
                 finished_jobs.add(job.name)
                 done(outcome)
@@ -505,3 +562,8 @@ def _run_pool(
         if events is not None:
             events.close()
     pool.shutdown(wait=True)
+    if lost:
+        _remove_temporaries_of(lost)
+    lost.sort(key=lambda j: jobs.index(j))
+    suspects.sort(key=lambda j: jobs.index(j))
+    return lost, suspects, _death([p.exitcode for p in spawned])

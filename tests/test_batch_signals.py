@@ -152,3 +152,48 @@ def test_interrupt_is_one_line_and_leaves_nothing_half_written(
     assert rerun.returncode == 0, rerun.stderr
     manifest = json.loads((out / "manifest.json").read_text())
     assert [c["status"] for c in manifest["clips"]] == ["done"] * 3
+
+
+def test_a_clip_that_kills_its_worker_fails_alone(long_clips: Path, tmp_path: Path) -> None:
+    """Whatever process opens c1.mp4 is SIGKILLed (as the OOM killer would do to a worker decoding a hostile
+    clip): the pool breaks, c1 fails with one line, every other clip is done."""
+    import threading
+
+    out = tmp_path / "out"
+    target = str(long_clips / "c1.mp4")
+    proc = subprocess.Popen(command("enhance", long_clips, "-o", out, "-j", "2", "--method", "gamma", "-q"),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    kills: list[int] = []
+    stop = threading.Event()
+
+    def killer() -> None:
+        while not stop.is_set():
+            for pid in descendants(proc.pid):
+                try:
+                    fds = os.listdir(f"/proc/{pid}/fd")
+                    if any(os.readlink(f"/proc/{pid}/fd/{fd}") == target for fd in fds):
+                        os.kill(pid, signal.SIGKILL)
+                        kills.append(pid)
+                except OSError:
+                    continue
+            time.sleep(0.002)
+
+    thread = threading.Thread(target=killer, daemon=True)
+    thread.start()
+    try:
+        _, stderr = proc.communicate(timeout=300)
+    finally:
+        stop.set()
+        thread.join()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert kills, "c1.mp4 was never opened by a worker"
+    assert proc.returncode == 1, stderr
+    assert "Traceback" not in stderr
+    failed = [ln for ln in stderr.splitlines() if ln.startswith("failed")]
+    assert len(failed) == 1 and "c1.mp4" in failed[0] and "worker process running this clip died" in failed[0], stderr
+    assert "SIGKILL" in failed[0]
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert {c["clip"]: c["status"] for c in manifest["clips"]} == {"c0": "done", "c1": "failed", "c2": "done"}
+    assert not [p for p in out.rglob("*") if TMP_MARK in p.name]
