@@ -173,7 +173,8 @@ class _Walk:
 
 def _direct(inp: Path) -> tuple[Path, Path, str | None]:
     """A path named on the command line that is not a folder to walk: one clip, maybe already known to fail."""
-    rel = Path(_strip_suffix(Path(inp.name)))
+    # abspath: "." or "videos/.." must not name the clip "." or "..", which would write into (or above) OUT
+    rel = Path(_strip_suffix(Path(os.path.basename(os.path.abspath(inp)) or "clip")))
     try:
         st = os.stat(inp)
     except OSError as exc:

@@ -55,6 +55,8 @@ def _cause(exc: OSError) -> str:
 def prepare_output(out_root: Path) -> Path:
     """Create ``out_root`` if needed and check that it is a folder this process can write; OutputError if not."""
     out_root = Path(out_root)
+    if os.path.lexists(out_root) and not out_root.exists():
+        raise OutputError(f"{out_root}: the output path is a dangling symbolic link (or a link loop)")
     if out_root.exists() and not out_root.is_dir():
         raise OutputError(f"{out_root}: the output path is a file, not a folder")
     try:

@@ -219,3 +219,16 @@ def test_deep_and_looping_trees_end(tmp_path: Path) -> None:
     found = discover([root], tmp_path / "out")
     assert [len(Path(j.name).parts) for j in found.jobs] == [1201]
     assert all(not p.failed for p in found.problems) and len(found.problems) == 2
+
+
+def test_dot_and_dotdot_inputs_never_write_outside_their_clip_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``colonlight enhance .`` inside a frame folder: the clip is named after the folder, not "." (which would
+    write its frames into OUT itself) nor ".." (above OUT)."""
+    seq = tmp_path / "seq"
+    make_image_folder(seq, n=4)
+    monkeypatch.chdir(seq)
+    for given in (Path("."), Path("../seq/../seq"), Path("sub/..")):
+        if given.parts[0] == "sub":
+            (seq / "sub").mkdir(exist_ok=True)
+        (job,) = discover([given], tmp_path / "out").jobs
+        assert job.name == "seq" and job.out_dir == tmp_path / "out" / "seq", job
