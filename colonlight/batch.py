@@ -314,7 +314,11 @@ _EVENTS: Any = None
 def _die_with_parent(parent_pid: int) -> None:
     """Have the kernel SIGKILL this worker when the batch process dies, however it dies (``kill -9`` included:
     no ``atexit`` or signal handler of the parent runs then). Linux's ``PR_SET_PDEATHSIG``; elsewhere only the
-    check below. The parent may have died before the ``prctl``: then it is not our parent any more."""
+    check below. The parent may have died before the ``prctl``: then it is not our parent any more.
+
+    The kernel watches the parent *thread* that started the worker: the pool starts all its workers in the
+    thread that runs the batch (on ``submit``; no ``max_tasks_per_child``, which would start them elsewhere),
+    and that thread outlives the pool."""
     if sys.platform.startswith("linux"):
         import ctypes
 

@@ -227,8 +227,7 @@ def test_dot_and_dotdot_inputs_never_write_outside_their_clip_folder(tmp_path: P
     seq = tmp_path / "seq"
     make_image_folder(seq, n=4)
     monkeypatch.chdir(seq)
+    (seq / "sub").mkdir()
     for given in (Path("."), Path("../seq/../seq"), Path("sub/..")):
-        if given.parts[0] == "sub":
-            (seq / "sub").mkdir(exist_ok=True)
         (job,) = discover([given], tmp_path / "out").jobs
         assert job.name == "seq" and job.out_dir == tmp_path / "out" / "seq", job
