@@ -14,7 +14,7 @@ import typer
 from colonlight import __version__
 from colonlight.errors import ColonlightError
 
-from . import demo, enhance, evaluate, info, synth, train
+from . import demo, enhance, evaluate, info, stream, synth, train
 from .display import error_line
 
 app = typer.Typer(
@@ -40,7 +40,7 @@ def main(
     """colonlight: consistent lighting for colonoscopy video."""
 
 
-for module in (enhance, demo, synth, train, info, evaluate):
+for module in (enhance, stream, demo, synth, train, info, evaluate):
     module.register(app)
 
 try:  # the service's command, when its module is present

@@ -1,0 +1,258 @@
+"""One live stream, start to end: a reader thread feeds a bounded hand-off, the processing loop enhances each frame
+with one recurrent state for the whole stream and writes it to the outputs; a summary at the end.
+
+The state is kept across reconnects: a reconnect is the same procedure seen again after a gap, and restarting
+would send the next two frames through unchanged (the model's seeds), a visible jump in brightness. A stream can
+be stopped at any moment from another thread or a signal handler (:meth:`LiveStream.stop`): the frame in hand is
+finished, the outputs are closed complete, and the summary is made.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from fractions import Fraction
+from pathlib import Path
+from typing import Any, BinaryIO
+
+from .. import __version__
+from ..atomic import write_json_atomic
+from ..errors import ColonlightError, InputError
+from ..methods.base import FrameResult, Method
+from ..provenance import library_versions
+from ..video import DEFAULT_FPS
+from .handoff import DROP_POLICIES, FrameHandoff, HandoffClosed
+from .outputs import FRAMES_DIR, LOG_FILE, SUMMARY_FILE, FrameFolder, FrameOutput, GammaLog, PipeClosed, open_pipe
+from .reader import LiveFrame, StreamReader
+from .source import SourceSpec
+from .stats import LatencyStats, StreamSummary
+
+#: Frames that may wait between the reader and the processing loop (each a full RGB frame: 6 MB at 1080p).
+DEFAULT_BUFFER = 2
+#: Seconds without data after which a network source or device counts as lost.
+DEFAULT_TIMEOUT_S = 5.0
+_POLL_S = 0.1  # how often the processing loop looks at the stop flag while waiting for a frame
+
+
+@dataclass(frozen=True)
+class StreamOptions:
+    """How a stream is read and processed."""
+
+    fps: float | None = DEFAULT_FPS  # None or 0: every source frame
+    realtime: bool = False  # pace a file at its own rate
+    drop: str = "auto"  # oldest | newest | never | auto (never for a file read as fast as possible, else oldest)
+    buffer: int = DEFAULT_BUFFER
+    reconnect: bool = False
+    timeout_s: float = DEFAULT_TIMEOUT_S
+    duration_s: float | None = None  # stop after this many seconds
+
+    def drop_policy(self, spec: SourceSpec) -> str:
+        if self.drop != "auto":
+            return self.drop
+        return "oldest" if spec.is_live or self.realtime else "never"
+
+    def __post_init__(self) -> None:
+        if self.drop != "auto" and self.drop not in DROP_POLICIES:
+            raise ValueError(f"drop must be auto or one of {', '.join(DROP_POLICIES)}, got {self.drop!r}")
+        if self.buffer < 1:
+            raise ValueError(f"buffer must be >= 1, got {self.buffer}")
+        if self.timeout_s <= 0:
+            raise ValueError(f"timeout must be > 0, got {self.timeout_s}")
+
+
+@dataclass(frozen=True)
+class OutputPlan:
+    """Which outputs a stream writes; each is opened at the first enhanced frame, so a source that never delivers
+    leaves nothing behind."""
+
+    out_dir: Path | None = None  # OUT/gammas.jsonl, OUT/stream.json and (with frames) OUT/frames/
+    frames: bool = True
+    format: str = "jpg"
+    quality: int = 95
+    keep: int = 0  # newest frames kept in OUT/frames (0: all)
+    pipe: str | None = None  # y4m | mpegts
+    pipe_file: BinaryIO | None = None  # where the pipe goes (the CLI: standard output)
+
+
+def prepare_output_dir(out_dir: Path, overwrite: bool) -> None:
+    """Refuse to mix two streams in one folder: InputError if OUT holds a stream's outputs, unless ``overwrite``
+    (then the old log, summary and frames go)."""
+    out_dir = Path(out_dir)
+    frames = out_dir / FRAMES_DIR
+    old = [p for p in (out_dir / LOG_FILE, out_dir / SUMMARY_FILE) if p.exists()]
+    old_frames = [p for p in frames.iterdir() if p.name.partition(".")[0].isdigit()] if frames.is_dir() else []
+    if not (old or old_frames):
+        return
+    if not overwrite:
+        raise InputError(f"{out_dir}: already holds a stream's outputs (use --overwrite or another --output)")
+    for p in old + old_frames:
+        p.unlink(missing_ok=True)
+
+
+class LiveStream:
+    """Enhance ``spec`` with ``method`` into the outputs of ``plan``; :meth:`run` returns the summary."""
+
+    def __init__(
+        self,
+        spec: SourceSpec,
+        method: Method,
+        opts: StreamOptions = StreamOptions(),
+        plan: OutputPlan = OutputPlan(),
+        *,
+        notify: Callable[[str], None] | None = None,
+        on_frame: Callable[[StreamSummary], None] | None = None,
+    ) -> None:
+        if spec.kind == "file" and opts.reconnect:
+            raise InputError(f"{spec.text}: --reconnect applies to network streams and devices, not to a file")
+        if spec.kind == "stdin" and opts.reconnect:
+            raise InputError("-: --reconnect applies to network streams and devices, not to standard input")
+        self.spec, self.method, self.opts, self.plan = spec, method, opts, plan
+        self.summary = StreamSummary(source=spec.text)
+        self.latency = LatencyStats()
+        self._stop = threading.Event()
+        self._stop_reason = "stopped"
+        self.handoff: FrameHandoff[LiveFrame] = FrameHandoff(opts.buffer, opts.drop_policy(spec))
+        self.reader = StreamReader(
+            spec, self.handoff, self.summary, self._stop, fps=opts.fps or None, realtime=opts.realtime,
+            reconnect=opts.reconnect, timeout_s=opts.timeout_s, notify=notify,
+        )
+        self.on_frame = on_frame
+        self._outputs: list[FrameOutput] = []
+        self._log: GammaLog | None = None
+        self._opened = False
+
+    def stop(self, reason: str = "stopped") -> None:
+        """End the stream soon (thread- and signal-safe): the frame in hand is finished, the rest is dropped."""
+        self._stop_reason = reason
+        self._stop.set()
+
+    # ------------------------------------------------------------------------------------------ outputs
+
+    def _open_outputs(self) -> None:
+        self._opened = True
+        plan = self.plan
+        if plan.out_dir is not None:
+            plan.out_dir.mkdir(parents=True, exist_ok=True)
+            if plan.frames:
+                self._outputs.append(FrameFolder(plan.out_dir / FRAMES_DIR, plan.format, plan.quality, plan.keep))
+            self._log = GammaLog(plan.out_dir / LOG_FILE)
+        if plan.pipe is not None and plan.pipe_file is not None:
+            rate = Fraction(self.opts.fps).limit_denominator(1001) if self.opts.fps else (self.reader.source_rate or 30)
+            self._outputs.append(open_pipe(plan.pipe, plan.pipe_file, Fraction(rate)))
+
+    def _close_outputs(self) -> None:
+        first_error: BaseException | None = None
+        for out in self._outputs:
+            try:
+                out.close()
+            except Exception as exc:  # noqa: BLE001 - close the others, report the first
+                first_error = first_error or exc
+        if self._log is not None:
+            self._log.close()
+        if first_error is not None:
+            raise first_error
+
+    # ------------------------------------------------------------------------------------------ the loop
+
+    def run(self) -> StreamSummary:
+        """Read, enhance and write until the source ends, :meth:`stop` is called or the duration is reached."""
+        t0 = time.perf_counter()
+        thread = threading.Thread(target=self.reader.run, name="colonlight-live-read", daemon=True)
+        stream = self.method.stream()  # one recurrent state for the whole stream, reconnects included
+        waiting: deque[LiveFrame] = deque()
+        last_progress = 0.0
+        ended_by_source = False
+        thread.start()
+        try:
+            while True:
+                if self._stop.is_set():
+                    self.summary.end = self._stop_reason
+                    break
+                if self.opts.duration_s is not None and time.perf_counter() - t0 >= self.opts.duration_s:
+                    self.summary.end = "duration reached"
+                    break
+                try:
+                    item = self.handoff.get(_POLL_S)
+                except HandoffClosed:
+                    ended_by_source = True
+                    break
+                if item is None:
+                    continue
+                waiting.append(item)
+                self._emit(stream.push(item.image), waiting)
+                if self.on_frame is not None and time.perf_counter() - last_progress > 0.25:
+                    last_progress = time.perf_counter()
+                    self._count_drops()
+                    self.on_frame(self.summary)
+            if ended_by_source:
+                self._emit(stream.flush(), waiting)
+                if self.reader.error is not None:
+                    raise self.reader.error
+                self.summary.end = self._stop_reason if self._stop.is_set() else (self.reader.ended or "source ended")
+        except PipeClosed as exc:
+            self.summary.end = str(exc)
+        except ColonlightError as exc:
+            self.summary.end = "error"
+            self.summary.error = str(exc)
+        finally:
+            self._stop.set()
+            self.handoff.cancel()
+            thread.join(timeout=self.opts.timeout_s + 1.0)
+            try:
+                self._close_outputs()
+            except PipeClosed:
+                pass
+            except (ColonlightError, OSError) as exc:
+                self.summary.error = self.summary.error or f"closing the outputs failed: {exc}"
+            self.summary.seconds = round(time.perf_counter() - t0, 3)
+            # every chosen frame that was not output was dropped: by the hand-off, or in hand when the stream stopped
+            self.summary.frames_dropped = max(self.handoff.dropped, self.summary.frames_in - self.summary.frames_out)
+            self.summary.take_latency(self.latency)
+            if self.plan.out_dir is not None and self._opened:
+                write_json_atomic(self.plan.out_dir / SUMMARY_FILE, self.record())
+        return self.summary
+
+    def _count_drops(self) -> None:
+        self.summary.frames_dropped = self.handoff.dropped
+
+    def _emit(self, results: list[FrameResult], waiting: deque[LiveFrame]) -> None:
+        for res in results:
+            f = waiting.popleft()
+            if not self._opened:
+                self._open_outputs()
+            for out in self._outputs:
+                out.write(f.index, res.frame)
+            done = time.perf_counter()
+            latency = done - f.arrival
+            self.latency.add(latency)
+            self.summary.frames_out += 1
+            if self._log is not None:
+                record: dict[str, Any] = {
+                    "index": f.index,
+                    "source_time_s": round(f.source_time_s, 6),
+                    "arrival": round(f.arrival_wall, 6),
+                    "output": round(f.arrival_wall + latency, 6),
+                    "latency_ms": round(latency * 1000.0, 3),
+                    "gamma": res.gamma,
+                }
+                if f.connection > 1:
+                    record["connection"] = f.connection
+                record.update(res.info)
+                self._log.write(record)
+
+    def record(self) -> dict[str, Any]:
+        """``stream.json``: the source, the settings and the summary."""
+        return {
+            "source": self.spec.text,
+            "kind": self.spec.kind,
+            "method": self.method.name,
+            "model": self.method.model_info(),
+            "parameters": self.method.parameters(),
+            "options": {**asdict(self.opts), "drop": self.handoff.policy},
+            "colonlight_version": __version__,
+            "versions": library_versions(),
+            "summary": asdict(self.summary),
+        }

@@ -1,0 +1,159 @@
+"""Where a live stream comes from: a capture device, a network URL, a file, or a container on standard input.
+
+Every kind is opened through PyAV (FFmpeg's demuxers and protocols), so MPEG-TS over UDP, HTTP or TCP, RTSP,
+Matroska or raw H.264 on a pipe and V4L2 devices all arrive as the same decoded frames. Opening failures become one
+:class:`~colonlight.errors.InputError` line naming the source and the cause.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import av
+
+from ..errors import InputError
+
+#: URL schemes read as network streams (FFmpeg protocols).
+NETWORK_SCHEMES = frozenset({"rtsp", "rtsps", "rtmp", "rtmps", "udp", "rtp", "tcp", "http", "https"})
+#: The SRC that means "a container stream on standard input".
+STDIN = "-"
+_V4L2_SYSFS = Path("/sys/class/video4linux")
+#: Options for network streams unless the user gives them: RTSP over TCP (no lost UDP packets, works through NAT);
+#: a UDP receive buffer that overflows is survivable (frames are dropped downstream, not the connection).
+_NETWORK_DEFAULTS: dict[str, dict[str, str]] = {
+    "rtsp": {"rtsp_transport": "tcp"},
+    "rtsps": {"rtsp_transport": "tcp"},
+    "udp": {"overrun_nonfatal": "1"},
+}
+
+
+@dataclass(frozen=True)
+class SourceSpec:
+    """A parsed SRC: what it is and what :func:`open_source` hands to PyAV."""
+
+    text: str  # as the user wrote it
+    kind: str  # device | network | file | stdin
+    url: str  # what av.open opens
+    format: str | None = None  # a forced demuxer (v4l2 for devices, or the user's --input-format)
+    options: Mapping[str, str] = field(default_factory=dict)
+
+    @property
+    def is_live(self) -> bool:
+        """True when frames arrive at the source's pace (everything but a file read as fast as possible)."""
+        return self.kind != "file"
+
+    @property
+    def can_reconnect(self) -> bool:
+        """Network streams and devices can be opened again after they end; a file or a pipe cannot."""
+        return self.kind in ("network", "device")
+
+
+def _scheme(text: str) -> str | None:
+    head, sep, _ = text.partition("://")
+    return head.lower() if sep and head.isalnum() else None
+
+
+def parse_source(text: str, input_format: str | None = None, options: Mapping[str, str] | None = None) -> SourceSpec:
+    """Classify SRC; InputError for an unknown URL scheme, a missing file, or an absent capture device."""
+    opts = dict(options or {})
+    if text == STDIN:
+        return SourceSpec(text, "stdin", "pipe:0", input_format, opts)
+    scheme = _scheme(text)
+    if scheme is not None:
+        if scheme not in NETWORK_SCHEMES:
+            raise InputError(f"{text}: unknown stream scheme {scheme!r} (use one of {', '.join(sorted(NETWORK_SCHEMES))})")
+        return SourceSpec(text, "network", text, input_format, {**_NETWORK_DEFAULTS.get(scheme, {}), **opts})
+    if text.startswith("/dev/video") or input_format in ("v4l2", "video4linux2"):
+        probe_device(Path(text))
+        return SourceSpec(text, "device", text, input_format or "v4l2", opts)
+    path = Path(text)
+    if not path.exists():
+        raise InputError(f"{text}: no such file (a stream URL needs a scheme such as udp:// or http://)")
+    if path.is_dir():
+        raise InputError(f"{text}: is a folder; `colonlight stream` reads one video, device or URL")
+    return SourceSpec(text, "file", str(path), input_format, opts)
+
+
+@dataclass(frozen=True)
+class CaptureDevice:
+    path: Path
+    name: str
+
+
+def list_devices() -> list[CaptureDevice]:
+    """The V4L2 capture devices of this machine (``/dev/videoN`` with their driver's name), sorted by number."""
+    found = []
+    for dev in sorted(Path("/dev").glob("video*"), key=lambda p: (len(p.name), p.name)):
+        name_file = _V4L2_SYSFS / dev.name / "name"
+        try:
+            name = name_file.read_text(encoding="utf-8", errors="replace").strip()
+        except OSError:
+            name = "?"
+        found.append(CaptureDevice(dev, name))
+    return found
+
+
+def probe_device(path: Path) -> None:
+    """InputError unless ``path`` is a capture device this process may open (checked before FFmpeg tries)."""
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        present = ", ".join(str(d.path) for d in list_devices())
+        hint = f"devices present: {present}" if present else "this machine has no /dev/video* capture device"
+        raise InputError(f"{path}: no such capture device ({hint})") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot inspect the device ({exc.strerror or exc})") from None
+    if not stat.S_ISCHR(st.st_mode):
+        raise InputError(f"{path}: not a capture device (not a character device)")
+    if not os.access(path, os.R_OK | os.W_OK):
+        raise InputError(f"{path}: permission denied (add the user to the device's group, usually 'video')")
+
+
+def _cause(exc: BaseException) -> str:
+    if isinstance(exc, av.error.ExitError):
+        return "no data before the timeout"
+    if isinstance(exc, av.error.InvalidDataError):
+        return "not a video stream FFmpeg recognises (invalid data)"
+    text = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+    return " ".join(str(text).split())
+
+
+def open_source(spec: SourceSpec, timeout_s: float) -> tuple[Any, Any]:
+    """Open ``spec`` and pick its video stream; one InputError line on failure.
+
+    ``timeout_s`` bounds opening (but for standard input) and every later read: a silent network source raises
+    instead of blocking.
+    """
+    kwargs: dict[str, Any] = {"mode": "r", "metadata_errors": "replace", "options": dict(spec.options)}
+    if spec.format:
+        kwargs["format"] = spec.format
+    if spec.kind != "file":  # standard input may wait for its producer to start: only reads time out
+        kwargs["timeout"] = (None if spec.kind == "stdin" else timeout_s, timeout_s)
+    try:
+        container = av.open(spec.url, **kwargs)
+    except (av.error.FFmpegError, OSError, ValueError, UnicodeError) as exc:
+        raise InputError(f"{spec.text}: cannot open ({_cause(exc)})") from exc
+    try:
+        streams = [s for s in container.streams.video if not s.disposition & av.stream.Disposition.attached_pic]
+        if not streams:
+            raise InputError(f"{spec.text}: holds no video stream")
+        stream = streams[0]
+        if stream.codec_context is None:
+            raise InputError(f"{spec.text}: no decoder for its video codec")
+        # A live frame must leave the decoder as soon as its packet is in: slice threads only (frame threads hold
+        # back one frame per thread). A file read as fast as possible takes every thread.
+        stream.codec_context.thread_type = "AUTO" if spec.kind == "file" else "SLICE"
+    except BaseException:
+        container.close()
+        raise
+    return container, stream
+
+
+def source_error(spec: SourceSpec, exc: BaseException, frames: int) -> InputError:
+    """The one-line error for a source that failed after ``frames`` decoded frames."""
+    return InputError(f"{spec.text}: stream lost after {frames} frames ({_cause(exc)})")
