@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import sys
 import time
+import unicodedata
 from typing import Any
 
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
@@ -19,14 +21,49 @@ from rich.progress import (
 from rich.table import Table
 
 from colonlight.batch import ClipOutcome
+from colonlight.discovery import PathProblem
 
 console = Console(stderr=True, highlight=False)
 out = Console(highlight=False)
 
 
+#: Unicode categories never printed as they are: controls (a newline), formats (a right-to-left override),
+#: line and paragraph separators, surrogates, private and unassigned code points.
+_UNSHOWN = frozenset({"Cc", "Cf", "Cs", "Co", "Cn", "Zl", "Zp"})
+
+
+def printable(text: str) -> str:
+    """``text`` (a message naming paths) as one line any terminal shows as it is.
+
+    Bytes of a name that are not UTF-8 (surrogate escapes, as ``os.fsdecode`` gives them) show as ``\\xNN``,
+    control characters (a newline in a file name) as escapes, characters the terminal's encoding lacks (``ü``
+    on an ASCII terminal) as ``\\xNN``/``\\uNNNN``, and ``[`` cannot start rich markup.
+    """
+    try:
+        text = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    except UnicodeEncodeError:  # a surrogate that no file name gives: escape it as it is
+        text = text.encode("utf-8", "backslashreplace").decode("utf-8")
+    if not text.isprintable():
+        text = "".join(
+            c.encode("unicode_escape").decode("ascii") if unicodedata.category(c) in _UNSHOWN else c for c in text
+        )
+    encoding = console.encoding or "utf-8"
+    try:
+        text = text.encode(encoding, "backslashreplace").decode(encoding)
+    except LookupError:  # an encoding Python does not know: keep ASCII
+        text = text.encode("ascii", "backslashreplace").decode("ascii")
+    return escape(text)
+
+
 def error_line(message: str) -> None:
     """One line on stderr, no traceback."""
-    console.print(f"[bold red]error:[/] {message}", soft_wrap=True)
+    console.print(f"[bold red]error:[/] {printable(message)}", soft_wrap=True)
+
+
+def problem_line(problem: PathProblem) -> None:
+    """A path that was not a clip and was not searched (a folder that cannot be read, a link loop)."""
+    label = "[red]failed[/] " if problem.failed else "[dim]skipped[/]"
+    console.print(f"{label} {printable(problem.message)}", soft_wrap=True)
 
 
 class FpsColumn(TextColumn):
@@ -81,7 +118,7 @@ class BatchDisplay:
         if not self.progress:
             return
         if event == "start":
-            self.clip_tasks[clip] = self.progress.add_task(f"  {clip}", total=data.get("total"), unit="frames")
+            self.clip_tasks[clip] = self.progress.add_task(f"  {printable(clip)}", total=data.get("total"), unit="frames")
         elif event == "frames" and clip in self.clip_tasks:
             self.progress.update(self.clip_tasks[clip], completed=data["done"])
         elif event == "end" and clip in self.clip_tasks:
@@ -91,11 +128,11 @@ class BatchDisplay:
         if self.progress:
             self.progress.advance(self.overall)
         if o.status == "failed":
-            self._print(f"[red]failed[/]  {o.error}")
+            self._print(f"[red]failed[/]  {printable(o.error or o.name)}")
         elif o.skipped:
-            self._print(f"[dim]skipped[/] {o.name} (complete)")
+            self._print(f"[dim]skipped[/] {printable(o.name)} (complete)")
         else:
-            self._print(f"[green]done[/]    {o.name}: {o.frames} frames in {o.seconds:.1f} s")
+            self._print(f"[green]done[/]    {printable(o.name)}: {o.frames} frames in {o.seconds:.1f} s")
 
     def _print(self, text: str) -> None:
         if self.progress:
@@ -118,5 +155,5 @@ def summary(outcomes: list[ClipOutcome], seconds: float, out_dir: str) -> None:
         f"{seconds:.1f}", f"{frames / seconds:.1f}" if seconds > 0 else "-",
     )
     console.print(table)
-    console.print(f"outputs: {out_dir}")
+    console.print(f"outputs: {printable(out_dir)}")
     sys.stderr.flush()

@@ -3,20 +3,54 @@
 from __future__ import annotations
 
 import gc
+import signal
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Optional
 
 import typer
 
-from colonlight.batch import MethodSpec, _method_for, default_workers, discover_clips, run_batch
+from colonlight.batch import ManifestError, MethodSpec, default_workers, run_batch, warm_method
+from colonlight.discovery import discover
 from colonlight.errors import ColonlightError
 from colonlight.methods import available_methods, is_available
+from colonlight.outdir import OutputError, output_lock
 from colonlight.pipeline import ClipOptions
 from colonlight.slam_layout import read_camera
 
 from . import options
-from .display import BatchDisplay, console, error_line, summary
+from .display import BatchDisplay, console, error_line, problem_line, summary
+
+INTERRUPTED = "interrupted; rerun the same command to resume"
+
+
+@contextmanager
+def _stop_signals_interrupt() -> Iterator[list[int]]:
+    """SIGINT (Ctrl-C) and SIGTERM (``kill``, ``docker stop``) both interrupt the batch, once: a second signal
+    during the clean-up is ignored, so that the clean-up finishes. Yields the list the signal's number lands in.
+
+    Outside the main thread (where signal handlers cannot be set) nothing changes.
+    """
+    received: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield received
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        if received:
+            return
+        received.append(signum)
+        raise KeyboardInterrupt
+
+    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield received
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
 
 
 def enhance(
@@ -59,41 +93,66 @@ def enhance(
     except ValueError as exc:
         raise typer.BadParameter(str(exc)) from exc
     spec = MethodSpec.of(method, **options.method_options(method, weights, model_size, device, gamma, runtime))
+    with _stop_signals_interrupt() as received:
+        try:
+            failed = _run(inputs, output, spec, clip_opts, pattern, workers, cluster, overwrite, quiet, debug)
+        except KeyboardInterrupt:
+            console.print(INTERRUPTED, markup=False)
+            raise typer.Exit(143 if received == [signal.SIGTERM] else 130) from None
+    if failed:
+        raise typer.Exit(1)
+
+
+def _run(
+    inputs: list[Path], output: Path, spec: MethodSpec, clip_opts: ClipOptions, pattern: str | None,
+    workers: int | None, cluster: str | None, overwrite: bool, quiet: bool, debug: bool,
+) -> bool:
+    """The batch: load the model, hold the output folder, find the clips, run them. True if anything failed."""
     # Loading the model imports torch (~10^5 long-lived objects): the cyclic GC, which would walk them again and
     # again meanwhile, is off until they are frozen below (-0.1 s CPU of a ~1 s load).
     gc.disable()
     try:
         try:
-            _method_for(spec)  # load the model now: a bad checkpoint or absent device stops here, loudly
+            warm_method(spec)  # load the model now: a bad checkpoint or absent device stops here, loudly
         except (ColonlightError, ValueError) as exc:
             if debug:
                 raise
             error_line(str(exc))
             raise typer.Exit(2) from None
-        jobs = discover_clips(inputs, output, pattern)
     finally:
         # Everything imported so far (torch alone is ~10^5 objects) lives as long as the process: moved out of the
         # cyclic GC's sight, the full collections that frame-rate allocation triggers (~0.1 s each, all threads
         # stopped) become cheap. Measured: -0.8 s wall on a 20 s 1350x1080 clip.
         gc.freeze()
         gc.enable()
-    if not jobs:
-        error_line("no clips found in " + ", ".join(str(p) for p in inputs))
-        raise typer.Exit(1)
-    n_workers = workers or default_workers(len(jobs))
-    t0 = time.perf_counter()
-    with BatchDisplay(len(jobs), quiet=quiet) as display:
-        outcomes = run_batch(
-            jobs, spec, clip_opts, output, workers=n_workers, overwrite=overwrite,
-            progress=None if quiet else display.event, on_outcome=display.outcome, cluster=cluster,
-        )
+    try:
+        with output_lock(output):
+            found = discover(inputs, output, pattern, exclude=[output])
+            for problem in found.problems:
+                problem_line(problem)
+            if not found.jobs:
+                error_line("no clips found in " + ", ".join(str(p) for p in inputs))
+                return True
+            n_workers = workers or default_workers(len(found.jobs))
+            t0 = time.perf_counter()
+            with BatchDisplay(len(found.jobs), quiet=quiet) as display:
+                outcomes = run_batch(
+                    found.jobs, spec, clip_opts, output, workers=n_workers, overwrite=overwrite,
+                    progress=None if quiet else display.event, on_outcome=display.outcome, cluster=cluster,
+                    problems=found.problems,
+                )
+    except OutputError as exc:  # the output folder is a file, read-only, or held by another batch: a usage error
+        error_line(str(exc))
+        raise typer.Exit(2) from None
+    except ManifestError as exc:
+        error_line(str(exc))
+        return True
     if debug:
         for o in outcomes:
             if o.detail:
-                console.print(o.detail)
+                console.print(o.detail.encode("utf-8", "backslashreplace").decode("utf-8"), markup=False)
     summary(outcomes, time.perf_counter() - t0, str(output))
-    if any(o.status == "failed" for o in outcomes):
-        raise typer.Exit(1)
+    return any(o.status == "failed" for o in outcomes) or any(p.failed for p in found.problems)
 
 
 def register(app: typer.Typer) -> None:

@@ -82,17 +82,29 @@ def write_bytes_atomic(dest: Path, data: bytes) -> None:
     publish(write_temporary(dest, data), Path(dest))
 
 
+def json_bytes(obj: Any) -> bytes:
+    """``obj`` as indented UTF-8 JSON, valid whatever its strings hold.
+
+    File names that are not valid UTF-8 reach Python as lone surrogates (``os.fsdecode``'s surrogate escapes,
+    U+DC80..U+DCFF for the bytes 0x80..0xFF), which UTF-8 cannot encode. They are written as JSON escapes
+    (``\\udcff``), which every JSON reader accepts and Python's ``json`` reads back to the same string, so
+    ``os.fsencode`` gives back the name's original bytes: lossless. Everything else is plain UTF-8.
+    """
+    return (json.dumps(obj, indent=1, ensure_ascii=False) + "\n").encode("utf-8", "backslashreplace")
+
+
 def write_json_atomic(dest: Path, obj: Any) -> None:
-    """Write ``obj`` as indented UTF-8 JSON to ``dest`` atomically."""
-    write_bytes_atomic(dest, (json.dumps(obj, indent=1, ensure_ascii=False) + "\n").encode("utf-8"))
+    """Write ``obj`` as indented UTF-8 JSON (:func:`json_bytes`) to ``dest`` atomically."""
+    write_bytes_atomic(dest, json_bytes(obj))
 
 
-def remove_stale_temporaries(folder: Path) -> int:
-    """Delete temporaries left in ``folder`` (recursively) by an interrupted run; return how many."""
+def remove_stale_temporaries(folder: Path, recursive: bool = True) -> int:
+    """Delete temporaries left in ``folder`` (and, if ``recursive``, below it) by an interrupted run; return how many."""
     count = 0
+    folder = Path(folder)
     if not folder.is_dir():
         return 0
-    for p in folder.rglob(f"*{TMP_MARK}*"):
+    for p in folder.rglob(f"*{TMP_MARK}*") if recursive else folder.glob(f"*{TMP_MARK}*"):
         if p.is_file():
             p.unlink(missing_ok=True)
             count += 1

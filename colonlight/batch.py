@@ -1,48 +1,50 @@
-"""Batch runs: find the clips under the inputs, plan where each one's outputs go, skip finished ones, run the
-rest (in this process, in a local pool of worker processes, or on a Dask cluster) and keep a manifest.
+"""Batch runs: run the clips that discovery found (in this process, in a local pool of worker processes, or on a
+Dask cluster), skip finished ones, and keep a manifest. Finding and naming clips: :mod:`colonlight.discovery`.
 
-Naming (a stable interface): a clip named directly on the command line (a video file or a folder of frames) is
-written to ``OUT/<its name, suffix dropped>``; a clip found inside a given folder keeps its path relative to that
-folder, suffix dropped (``videos/site1/p7.mp4`` -> ``OUT/site1/p7``).
+What a batch guarantees (the README's reliability section says the same for users):
+
+* it never stops for one clip: every failure, expected or not, is one line naming the clip and the cause, and a
+  ``failed`` manifest entry; a write error (a full disk) also removes what that clip had written, to free space;
+* one batch per output folder (:mod:`colonlight.outdir`), so no manifest entry is lost to a concurrent batch;
+* the manifest is rewritten atomically after every clip; if it cannot be written (a full disk) the last
+  complete version stays and the write is retried after the next clip and at the end;
+* an interrupt (``KeyboardInterrupt``: Ctrl-C, or SIGTERM as the CLI maps it) stops the workers, removes every
+  temporary of the clips that were running and propagates; complete clips are kept, a rerun resumes;
+* pool workers die with the batch process, even when it is killed with SIGKILL (Linux: ``PR_SET_PDEATHSIG``).
 """
 
 from __future__ import annotations
 
-import fnmatch
+import errno
 import multiprocessing as mp
 import os
+import queue
+import signal
 import sys
 import time
 import traceback
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from . import __version__
-from .atomic import write_json_atomic
+from .atomic import remove_stale_temporaries, write_json_atomic
+from .discovery import VIDEO_SUFFIXES, ClipJob, discover_clips  # noqa: F401 - re-exported (the batch's API)
 from .errors import ColonlightError
-from .frames import IMAGE_SUFFIXES, is_image_folder, list_image_frames
+from .frames import list_image_frames
 from .methods import Method, create_method
-from .pipeline import ClipOptions, complete_record, enhance_clip
-from .video import is_video, probe_video
+from .outdir import output_lock
+from .pipeline import FRAMES_DIR, GAMMAS_FILE, VIDEO_FILE, ClipOptions, complete_record, enhance_clip
+from .video import probe_video
 
 MANIFEST_FILE = "manifest.json"
-#: Suffixes taken as videos even before probing, so that a broken file with such a name is reported, not ignored.
-VIDEO_SUFFIXES = frozenset(
-    ".mp4 .m4v .mov .avi .mkv .mpg .mpeg .ts .mts .m2ts .webm .wmv .flv .3gp .ogv .mxf .vob".split()
-)
-_SIDE_SUFFIXES = frozenset(".json .txt .csv .md .yaml .yml .xml .log .ini".split())
-
-
-@dataclass(frozen=True)
-class ClipJob:
-    """One clip of a batch: where it comes from, what it is called and where its outputs go."""
-
-    source: Path
-    name: str  # relative output path, POSIX separators
-    out_dir: Path
+#: How names that are not valid UTF-8 appear in the manifest (and in every gammas.json): see atomic.json_bytes.
+PATH_ENCODING = "utf-8, surrogateescape (a byte 0xNN that is not UTF-8 is written as \\udcNN; os.fsencode restores it)"
+#: Errors of writing that mean "no room": the clip's partial outputs are removed to free it.
+_NO_ROOM = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
 
 
 @dataclass
@@ -70,69 +72,6 @@ class MethodSpec:
 
     def build(self) -> Method:
         return create_method(self.name, **dict(self.options))
-
-
-# ----------------------------------------------------------------------------------------------- discovery
-
-
-def _strip_suffix(rel: Path) -> Path:
-    return rel.with_suffix("") if rel.suffix else rel
-
-
-def _walk(root: Path) -> Iterable[tuple[Path, Path]]:
-    """Yield ``(source, relative name)`` for the clips under ``root``, in sorted order."""
-    for dirpath, dirnames, filenames in os.walk(root):
-        dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
-        here = Path(dirpath)
-        for d in list(dirnames):
-            sub = here / d
-            if is_image_folder(sub):
-                dirnames.remove(d)  # a frame folder is one clip: do not descend
-                yield sub, sub.relative_to(root)
-        for fname in sorted(filenames):
-            if fname.startswith("."):
-                continue
-            p = here / fname
-            suffix = p.suffix.lower()
-            if suffix in IMAGE_SUFFIXES or suffix in _SIDE_SUFFIXES:
-                continue
-            if suffix in VIDEO_SUFFIXES or is_video(p):
-                yield p, _strip_suffix(p.relative_to(root))
-
-
-def discover_clips(inputs: Sequence[Path], out_root: Path, pattern: str | None = None) -> list[ClipJob]:
-    """The clips under ``inputs`` (files and folders, walked recursively), with their output folders.
-
-    ``pattern`` (a glob) keeps clips whose relative path or file name matches. Two clips that would share an
-    output folder are told apart by their suffix (``clip-mp4``, ``clip-avi``).
-    """
-    found: list[tuple[Path, Path]] = []
-    for inp in inputs:
-        inp = Path(inp)
-        if inp.is_dir() and not is_image_folder(inp):
-            found.extend(_walk(inp))
-        else:  # a file, a frame folder, or a path that does not exist (reported when the clip runs)
-            found.append((inp, Path(_strip_suffix(Path(inp.name)))))
-    if pattern:
-        found = [
-            (src, rel)
-            for src, rel in found
-            if fnmatch.fnmatch(src.name, pattern) or fnmatch.fnmatch(rel.as_posix(), pattern)
-            or fnmatch.fnmatch((rel.parent / src.name).as_posix(), pattern)
-        ]
-    counts: dict[str, int] = {}
-    for _, rel in found:
-        counts[rel.as_posix()] = counts.get(rel.as_posix(), 0) + 1
-    jobs, seen = [], set()
-    for src, rel in found:
-        name = rel.as_posix()
-        if counts[name] > 1 and src.suffix:
-            name = f"{name}-{src.suffix.lstrip('.').lower()}"
-        if (src.resolve(), name) in seen:
-            continue
-        seen.add((src.resolve(), name))
-        jobs.append(ClipJob(source=src, name=name, out_dir=Path(out_root) / name))
-    return jobs
 
 
 def estimate_frames(source: Path, fps: float | None) -> int | None:
@@ -164,6 +103,51 @@ def _method_for(spec: MethodSpec) -> Method:
     return _WORKER_METHODS[spec]
 
 
+def _is_under(path: str | os.PathLike[str] | None, folder: Path) -> bool:
+    if path is None:
+        return False
+    try:
+        return os.path.commonpath([os.path.abspath(os.fsdecode(path)), os.path.abspath(folder)]) == os.path.abspath(folder)
+    except ValueError:
+        return False
+
+
+def _discard_partial_outputs(out_dir: Path) -> None:
+    """Remove what a clip that failed on a write error published (frames, video, temporaries), to free the room
+    it took; a rerun writes them all again anyway (only a clip's ``gammas.json`` makes it complete)."""
+    remove_stale_temporaries(out_dir)
+    frames_dir = out_dir / FRAMES_DIR
+    try:
+        for p in frames_dir.iterdir():
+            if p.name.partition(".")[0].isdigit():
+                p.unlink(missing_ok=True)
+    except OSError:
+        pass
+    try:
+        (out_dir / VIDEO_FILE).unlink(missing_ok=True)
+    except OSError:
+        pass
+    for folder in (frames_dir, out_dir):
+        try:
+            folder.rmdir()  # only if now empty
+        except OSError:
+            pass
+
+
+def _os_error_line(job: ClipJob, exc: OSError) -> str:
+    """One line for an OS error while running a clip: a write to its outputs, or a read of its source."""
+    cause = exc.strerror or type(exc).__name__
+    if exc.errno in _NO_ROOM or _is_under(exc.filename, job.out_dir):
+        return f"{job.source}: cannot write its outputs to {job.out_dir}: {cause}"
+    where = f" ({os.fsdecode(exc.filename)})" if exc.filename is not None else ""
+    return f"{job.source}: {cause}{where}"
+
+
+def warm_method(spec: MethodSpec) -> Method:
+    """Build the method of ``spec`` in this process now (a bad checkpoint or device fails here, not mid-batch)."""
+    return _method_for(spec)
+
+
 def run_clip(
     job: ClipJob,
     spec: MethodSpec,
@@ -171,14 +155,26 @@ def run_clip(
     overwrite: bool = False,
     progress: ProgressFn | None = None,
 ) -> ClipOutcome:
-    """Run one clip and never raise for a bad clip: the outcome carries the one-line error."""
+    """Run one clip and never raise for a bad clip: the outcome carries the one-line error.
+
+    Only ``BaseException``s that are not errors (an interrupt, ``SystemExit``) propagate.
+    """
     t0 = time.perf_counter()
+
+    def failed(error: str, detail: str | None = None) -> ClipOutcome:
+        return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0, error=error,
+                           detail=detail)
+
+    if job.problem is not None:
+        return failed(job.problem)
+    started = False
     try:
         method = _method_for(spec)
         record = None if overwrite else complete_record(job.out_dir, method, opts)
         if record is not None:
             return ClipOutcome(job.name, str(job.source), "done", frames=record.get("frame_count", 0), skipped=True)
         if progress:
+            started = True
             progress("start", job.name, {"total": estimate_frames(job.source, opts.fps)})
         result = enhance_clip(
             job.source,
@@ -190,31 +186,36 @@ def run_clip(
         )
         return ClipOutcome(job.name, str(job.source), "done", frames=result.frames, seconds=result.seconds)
     except ColonlightError as exc:
-        return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0, error=str(exc))
+        return failed(str(exc))
     except ValueError as exc:  # bad option values reach here from method construction
-        return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0, error=f"{job.source}: {exc}")
+        return failed(f"{job.source}: {exc}")
+    except OSError as exc:  # a full disk, a read-only remount, an I/O error: this clip fails, the batch goes on
+        line = _os_error_line(job, exc)
+        if exc.errno in _NO_ROOM or _is_under(exc.filename, job.out_dir):
+            _discard_partial_outputs(job.out_dir)
+        return failed(line, traceback.format_exc())
     except Exception as exc:  # noqa: BLE001 - a bug must not stop the batch; it is reported with its traceback
-        return ClipOutcome(
-            job.name,
-            str(job.source),
-            "failed",
-            seconds=time.perf_counter() - t0,
-            error=f"{job.source}: internal error: {type(exc).__name__}: {exc}",
-            detail=traceback.format_exc(),
-        )
+        return failed(f"{job.source}: internal error: {type(exc).__name__}: {exc}", traceback.format_exc())
     finally:
-        if progress:
+        if started and progress:
             progress("end", job.name, {})
 
 
 @dataclass
 class Manifest:
     """``OUT/manifest.json``: every clip ever run into OUT (entries of earlier runs are kept), rewritten atomically
-    after each clip so that it is current even after a crash."""
+    after each clip so that it is current even after a crash.
+
+    A write that fails (a full disk) leaves the previous, complete manifest in place; :attr:`unsaved` then holds
+    the error and the next :meth:`record` (or :meth:`save`) tries again. ``problems``: the paths of this run
+    that were not clips and could not be searched (replaced by every run).
+    """
 
     path: Path
     settings: dict[str, Any]
     clips: dict[str, dict[str, Any]] = field(default_factory=dict)
+    problems: list[dict[str, str]] = field(default_factory=list)
+    unsaved: OSError | None = None
 
     @staticmethod
     def open(out_root: Path, settings: dict[str, Any]) -> Manifest:
@@ -225,7 +226,7 @@ class Manifest:
         try:
             for entry in json.loads(path.read_text(encoding="utf-8")).get("clips", []):
                 clips[entry["clip"]] = entry
-        except (OSError, ValueError, KeyError, TypeError):
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
             pass
         return Manifest(path, settings, clips)
 
@@ -239,15 +240,27 @@ class Manifest:
         self.clips[outcome.name] = entry
         self.save()
 
-    def save(self) -> None:
-        write_json_atomic(
-            self.path,
-            {
-                "colonlight_version": __version__,
-                "settings": self.settings,
-                "clips": [self.clips[k] for k in sorted(self.clips)],
-            },
-        )
+    def save(self) -> bool:
+        """Write the manifest; False (the error kept in :attr:`unsaved`) if it cannot be written now."""
+        doc: dict[str, Any] = {
+            "colonlight_version": __version__,
+            "path_encoding": PATH_ENCODING,
+            "settings": self.settings,
+            "clips": [self.clips[k] for k in sorted(self.clips)],
+        }
+        if self.problems:
+            doc["problems"] = self.problems
+        try:
+            write_json_atomic(self.path, doc)
+        except OSError as exc:
+            self.unsaved = exc
+            return False
+        self.unsaved = None
+        return True
+
+
+class ManifestError(ColonlightError):
+    """The manifest could not be written at the end of a batch (the clips' own outputs are complete)."""
 
 
 def default_workers(n_clips: int) -> int:
@@ -290,10 +303,44 @@ def _init_worker(threads: int) -> None:
     reuse_frame_memory()
 
 
-def _init_pool_worker(threads: int) -> None:
-    """A clip worker process: torch threads, then the imports frozen out of the cyclic GC (see cli/enhance.py)."""
+#: Signals that stop a batch; held back while pool workers are started, so that a worker never starts with
+#: Python's default Ctrl-C handler (it ignores SIGINT: the batch process decides, see _run_pool).
+_STOP_SIGNALS = frozenset({signal.SIGINT, signal.SIGTERM})
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
+#: In a pool worker: the queue its progress events go to (handed over at start, see _init_pool_worker).
+_EVENTS: Any = None
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    """Have the kernel SIGKILL this worker when the batch process dies, however it dies (``kill -9`` included:
+    no ``atexit`` or signal handler of the parent runs then). Linux's ``PR_SET_PDEATHSIG``; elsewhere only the
+    check below. The parent may have died before the ``prctl``: then it is not our parent any more.
+
+    The kernel watches the parent *thread* that started the worker: the pool starts all its workers in the
+    thread that runs the batch (on ``submit``; no ``max_tasks_per_child``, which would start them elsewhere),
+    and that thread outlives the pool."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):  # no prctl in this libc: the ppid check still catches a dead parent
+            pass
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+
+def _init_pool_worker(threads: int, parent_pid: int, events: Any) -> None:
+    """A clip worker process: bound to the batch process's life, deaf to Ctrl-C (the terminal sends it to the
+    whole process group; the batch process stops the workers itself), torch threads, then the imports frozen
+    out of the cyclic GC (see cli/enhance.py)."""
     import gc
 
+    global _EVENTS
+    _die_with_parent(parent_pid)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
+    _EVENTS = events
     _init_worker(threads)
     gc.freeze()
 
@@ -309,8 +356,9 @@ def network_threads(spec: MethodSpec, workers: int) -> int:
     return max(1, cores // max(1, workers))
 
 
-def _run_in_worker(job: ClipJob, spec: MethodSpec, opts: ClipOptions, overwrite: bool, events: Any) -> ClipOutcome:
+def _run_in_worker(job: ClipJob, spec: MethodSpec, opts: ClipOptions, overwrite: bool) -> ClipOutcome:
     progress: ProgressFn | None = None
+    events = _EVENTS
     if events is not None:
         last = [0.0]
 
@@ -324,6 +372,15 @@ def _run_in_worker(job: ClipJob, spec: MethodSpec, opts: ClipOptions, overwrite:
     return run_clip(job, spec, opts, overwrite, progress)
 
 
+def _remove_temporaries_of(jobs: Sequence[ClipJob]) -> None:
+    """After an interrupt: delete the temporaries of the clips that may have been running (a complete clip,
+    which has its ``gammas.json``, was not running: its folder is not searched)."""
+    for job in jobs:
+        out_dir = Path(job.out_dir)
+        if out_dir.is_dir() and not (out_dir / GAMMAS_FILE).exists():
+            remove_stale_temporaries(out_dir)
+
+
 def run_batch(
     jobs: Sequence[ClipJob],
     spec: MethodSpec,
@@ -335,29 +392,51 @@ def run_batch(
     progress: ProgressFn | None = None,
     on_outcome: Callable[[ClipOutcome], None] | None = None,
     cluster: str | None = None,
+    problems: Sequence[Any] = (),
 ) -> list[ClipOutcome]:
-    """Run every job; a failing clip is recorded and the others go on. Returns outcomes in job order."""
+    """Run every job; a failing clip is recorded and the others go on. Returns outcomes in job order.
+
+    Holds the output folder's lock throughout (OutputError if it cannot be used or another batch holds it).
+    ``problems``: discovery's :class:`~colonlight.discovery.PathProblem` list, kept in the manifest. Raises
+    ManifestError at the end if the manifest could not be written (the clips' outputs are complete).
+    """
     out_root = Path(out_root)
-    out_root.mkdir(parents=True, exist_ok=True)
-    manifest = Manifest.open(out_root, {"method": spec.name, "options": dict(spec.options), **vars(opts)})
-    outcomes: dict[str, ClipOutcome] = {}
+    with output_lock(out_root):
+        manifest = Manifest.open(out_root, {"method": spec.name, "options": dict(spec.options), **vars(opts)})
+        manifest.problems = [{"path": p.path, "error": p.message, "status": "failed" if p.failed else "skipped"}
+                             for p in problems]
+        outcomes: dict[str, ClipOutcome] = {}
 
-    def done(outcome: ClipOutcome) -> None:
-        outcomes[outcome.name] = outcome
-        manifest.record(outcome)
-        if on_outcome:
-            on_outcome(outcome)
+        def done(outcome: ClipOutcome) -> None:
+            outcomes[outcome.name] = outcome
+            manifest.record(outcome)
+            if on_outcome:
+                on_outcome(outcome)
 
-    if cluster:
-        from .cluster import run_on_cluster
+        try:
+            if cluster:
+                from .cluster import run_on_cluster
 
-        run_on_cluster(cluster, jobs, spec, opts, overwrite, done, progress)
-    elif workers <= 1 or len(jobs) <= 1:
-        _init_worker(network_threads(spec, 1))
-        for job in jobs:
-            done(run_clip(job, spec, opts, overwrite, progress))
-    else:
-        _run_pool(jobs, spec, opts, overwrite, workers, progress, done)
+                run_on_cluster(cluster, jobs, spec, opts, overwrite, done, progress)
+            elif workers <= 1 or len(jobs) <= 1:
+                _init_worker(network_threads(spec, 1))
+                for i, job in enumerate(jobs):
+                    try:
+                        done(run_clip(job, spec, opts, overwrite, progress))
+                    except BaseException:
+                        _remove_temporaries_of(jobs[i : i + 1])
+                        raise
+            else:
+                _run_pool(jobs, spec, opts, overwrite, workers, progress, done)
+        except BaseException:
+            remove_stale_temporaries(out_root, recursive=False)  # a manifest write cut short
+            raise
+        if manifest.unsaved is not None and not manifest.save():
+            exc = manifest.unsaved
+            raise ManifestError(
+                f"{manifest.path}: cannot write the manifest: {exc.strerror or exc}; the previous manifest is kept "
+                "and the clips' own outputs are complete (rerun to record them)"
+            )
     return [outcomes[j.name] for j in jobs if j.name in outcomes]
 
 
@@ -370,31 +449,125 @@ def _run_pool(
     progress: ProgressFn | None,
     done: Callable[[ClipOutcome], None],
 ) -> None:
+    """The clips on a pool of ``workers`` spawned processes.
+
+    A worker that dies (the kernel's OOM killer, a crash in a decoder) breaks the whole pool: the clips it took
+    with it are run again, the ones that were running in a pool of one worker, where a second death fails that
+    clip only ("the worker process running this clip died ..."); the rest of the batch goes on in a new pool.
+    Every round settles at least one clip, so this ends. On any exception (an interrupt) the workers are killed, the
+    temporaries of unfinished clips removed, and the exception propagates.
+    """
+    todo = list(jobs)
+    while todo:
+        lost, suspects, death = _pool_round(todo, spec, opts, overwrite, workers, progress, done)
+        if not lost:
+            return
+        isolate = suspects or lost
+        while isolate:  # one worker takes its clips in order: the first one lost is the one it was running
+            isolate, _, death = _pool_round(isolate, spec, opts, overwrite, 1, progress, done)
+            if isolate:
+                guilty, isolate = isolate[0], isolate[1:]
+                done(ClipOutcome(guilty.name, str(guilty.source), "failed",
+                                 error=f"{guilty.source}: the worker process running this clip died ({death})"))
+        todo = [j for j in lost if suspects and j not in suspects]
+
+
+def _death(exitcodes: Sequence[int | None]) -> str:
+    """Why a pool's worker died, from its processes' exit codes (the pool SIGTERMs the others after a death)."""
+    codes = [c for c in exitcodes if c not in (None, 0, -signal.SIGTERM)] or [c for c in exitcodes if c]
+    if not codes:
+        return "it exited"
+    code = codes[0]
+    if code is not None and code < 0:
+        name = signal.Signals(-code).name
+        return f"killed by {name}" + ("; out of memory?" if -code == signal.SIGKILL else "")
+    return f"exit status {code}"
+
+
+def _pool_round(
+    jobs: Sequence[ClipJob],
+    spec: MethodSpec,
+    opts: ClipOptions,
+    overwrite: bool,
+    workers: int,
+    progress: ProgressFn | None,
+    done: Callable[[ClipOutcome], None],
+) -> tuple[list[ClipJob], list[ClipJob], str]:
+    """One pool over ``jobs`` until they are done or the pool breaks. Returns the jobs lost with a broken pool,
+    those of them that were running (or queued to a worker) when it broke, and why the worker died."""
     ctx = mp.get_context("spawn")  # never fork a process that holds torch threads
-    with ctx.Manager() as manager:
-        events = manager.Queue() if progress else None
-        with ProcessPoolExecutor(
-            max_workers=workers, mp_context=ctx, initializer=_init_pool_worker,
-            initargs=(network_threads(spec, workers),),
-        ) as pool:
-            futures: dict[Future[ClipOutcome], ClipJob] = {
-                pool.submit(_run_in_worker, job, spec, opts, overwrite, events): job for job in jobs
-            }
-            pending = set(futures)
-            while pending:
-                finished = {f for f in pending if f.done()}
-                if events is not None and progress is not None:
-                    while not events.empty():
-                        progress(*events.get_nowait())
-                for fut in finished:
-                    pending.discard(fut)
-                    job = futures[fut]
-                    try:
-                        done(fut.result())
-                    except Exception as exc:  # noqa: BLE001 - a worker died: record it, go on
-                        done(ClipOutcome(job.name, str(job.source), "failed", error=f"{job.source}: worker failed: {exc}"))
-                if pending and not finished:
-                    time.sleep(0.05)
-            if events is not None and progress is not None:
-                while not events.empty():
-                    progress(*events.get_nowait())
+    events = ctx.Queue() if progress else None  # one per pool: a dead worker may have held the queue's lock
+
+    def drain() -> None:
+        while events is not None and progress is not None:
+            try:
+                item = events.get_nowait()
+            except queue.Empty:
+                return
+            progress(*item)
+
+    before = set(mp.active_children())
+    spawned: list[Any] = []
+    pool: ProcessPoolExecutor | None = None
+    futures: dict[Future[ClipOutcome], ClipJob] = {}
+    finished_jobs: set[str] = set()
+    lost: list[ClipJob] = []
+    suspects: list[ClipJob] = []
+    try:
+        # Workers start with SIGINT/SIGTERM blocked (they inherit this thread's mask through fork and exec) and
+        # unblock them only once their initializer ignores SIGINT: a Ctrl-C never hits a worker's startup.
+        # A signal that arrives meanwhile is delivered here when the mask is restored.
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+        try:
+            pool = ProcessPoolExecutor(
+                max_workers=workers, mp_context=ctx, initializer=_init_pool_worker,
+                initargs=(network_threads(spec, workers), os.getpid(), events),
+            )
+            for job in jobs:
+                futures[pool.submit(_run_in_worker, job, spec, opts, overwrite)] = job
+            spawned = [p for p in mp.active_children() if p not in before]
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        pending = set(futures)
+        running: set[Future[ClipOutcome]] = set()
+        order = {f: i for i, f in enumerate(futures)}
+        while pending:
+            running |= {f for f in pending if f.running()}
+            finished = {f for f in pending if f.done()}
+            drain()
+            for fut in sorted(finished, key=order.__getitem__):
+                pending.discard(fut)
+                job = futures[fut]
+                try:
+                    outcome = fut.result()
+                except BrokenProcessPool:
+                    lost.append(job)
+                    if fut in running:
+                        suspects.append(job)
+                    continue
+                except Exception as exc:  # noqa: BLE001 - e.g. a result that cannot be unpickled: this clip fails
+                    outcome = ClipOutcome(job.name, str(job.source), "failed", error=f"{job.source}: worker failed: {exc}")
+                finished_jobs.add(job.name)
+                done(outcome)
+            if pending and not finished:
+                time.sleep(0.05)
+        drain()
+    except BaseException:
+        workers_now = [p for p in mp.active_children() if p not in before]  # the pool's: they stop now, mid-clip
+        for proc in workers_now:
+            proc.kill()
+        for proc in workers_now:
+            proc.join(timeout=10)
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+        _remove_temporaries_of([j for j in jobs if j.name not in finished_jobs])
+        raise
+    finally:
+        if events is not None:
+            events.close()
+    pool.shutdown(wait=True)
+    if lost:
+        _remove_temporaries_of(lost)
+    lost.sort(key=lambda j: jobs.index(j))
+    suspects.sort(key=lambda j: jobs.index(j))
+    return lost, suspects, _death([p.exitcode for p in spawned])

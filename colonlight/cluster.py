@@ -35,6 +35,7 @@ Progress: workers send ``start``/``frames``/``end`` events through the scheduler
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import queue
 import time
@@ -188,7 +189,7 @@ def absolute_job(job: ClipJob) -> ClipJob:
     source, out_dir = Path(job.source), Path(job.out_dir)
     if source.is_absolute() and out_dir.is_absolute():
         return job
-    return ClipJob(source=source.absolute(), name=job.name, out_dir=out_dir.absolute())
+    return dataclasses.replace(job, source=source.absolute(), out_dir=out_dir.absolute())
 
 
 def absolute_spec(spec: MethodSpec) -> MethodSpec:

@@ -249,3 +249,15 @@ def ffmpeg_frames(path: Path, vf: str | None = None) -> Iterator[np.ndarray]:
 def ffmpeg_fps_indices(path: Path, fps: str | float = 18) -> list[int]:
     """Source indices of the frames ``ffmpeg -i path -vf fps=<fps>`` outputs."""
     return [read_index(f) for f in ffmpeg_frames(path, vf=f"fps={fps}")]
+
+
+def make_noise_clip(path: Path, n_frames: int = 30, fps: float = 25, size: tuple[int, int] = (320, 240), seed: int = 0) -> Path:
+    """A clip of random pixels: its frames barely compress (a PNG of one is ~the raw size), so that a test can
+    fill a small disk with a few of them."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    w, h = size
+    raw = np.random.default_rng(seed).integers(0, 256, (n_frames, h, w, 3), dtype=np.uint8).tobytes()
+    args = ["-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-framerate", str(fps), "-i", "-"]
+    _run([*args, *X264, "-y", str(path)], stdin=raw)
+    return path

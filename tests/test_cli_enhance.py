@@ -61,7 +61,7 @@ def test_tree_layout_and_gammas(tree: Path, tmp_path: Path, random_weights: Path
     out = tmp_path / "out"
     code, text = invoke("enhance", tree, "-o", out, "--weights", random_weights, "--quiet")
     assert code == 0, text
-    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "seq", "site 2", "site1"]
+    assert sorted(p.name for p in out.iterdir()) == [".colonlight.lock", "manifest.json", "seq", "site 2", "site1"]
     assert len(list((out / "site1" / "p7" / "frames").glob("*.png"))) == 36  # 2 s at 18 fps
     assert len(list((out / "site 2" / "clip ü" / "frames").glob("*.png"))) == 18
     assert len(list((out / "seq" / "frames").glob("*.png"))) == 12

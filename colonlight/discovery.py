@@ -1,0 +1,238 @@
+"""Finding the clips of a batch: walk the inputs, name each clip's output folder, and never stop for one bad path.
+
+Naming (a stable interface): a clip named directly on the command line (a video file or a folder of frames) is
+written to ``OUT/<its name, suffix dropped>``; a clip found inside a given folder keeps its path relative to that
+folder, suffix dropped (``videos/site1/p7.mp4`` -> ``OUT/site1/p7``).
+
+Hostile trees are expected: a path that cannot be used becomes either a clip that fails with its reason (a
+symlink loop or a dangling link with a video suffix, a FIFO named ``x.mp4``) or a :class:`PathProblem` (a folder
+that cannot be listed). Folder links are followed, each folder is searched once (loops end there), and the
+output folder and any other colonlight output folder (it holds :data:`OUTPUT_MARKER`) are never searched.
+Names that are not valid UTF-8 are kept as Python keeps them (``os.fsdecode``: surrogate escapes), so the
+output folder gets the same bytes.
+"""
+
+from __future__ import annotations
+
+import errno
+import fnmatch
+import os
+import stat
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .frames import IMAGE_SUFFIXES, is_image_folder
+from .video import is_video
+
+#: Suffixes taken as videos even before probing, so that a broken file with such a name is reported, not ignored.
+VIDEO_SUFFIXES = frozenset(
+    ".mp4 .m4v .mov .avi .mkv .mpg .mpeg .ts .mts .m2ts .webm .wmv .flv .3gp .ogv .mxf .vob".split()
+)
+_SIDE_SUFFIXES = frozenset(".json .txt .csv .md .yaml .yml .xml .log .ini".split())
+#: The lock file every ``colonlight enhance`` output folder holds (see :mod:`colonlight.outdir`): a folder
+#: holding it is an output, never an input.
+OUTPUT_MARKER = ".colonlight.lock"
+
+
+@dataclass(frozen=True)
+class ClipJob:
+    """One clip of a batch: where it comes from, what it is called and where its outputs go.
+
+    ``problem``: set when discovery already knows the clip cannot be read (a symlink loop, a dangling link);
+    the clip then fails with this one-line message without being opened.
+    """
+
+    source: Path
+    name: str  # relative output path, POSIX separators
+    out_dir: Path
+    problem: str | None = None
+
+
+@dataclass(frozen=True)
+class PathProblem:
+    """A path that is not a clip and was not searched: ``failed`` (a folder that cannot be listed: clips may be
+    missing) or merely skipped (a folder reached again through a link, a FIFO, another output folder)."""
+
+    path: str
+    message: str  # one line, naming the path
+    failed: bool = True
+
+
+@dataclass
+class Discovery:
+    jobs: list[ClipJob] = field(default_factory=list)
+    problems: list[PathProblem] = field(default_factory=list)
+
+
+def _strip_suffix(rel: Path) -> Path:
+    return rel.with_suffix("") if rel.suffix else rel
+
+
+def _cause(exc: OSError) -> str:
+    if exc.errno == errno.ELOOP:
+        return "symbolic link loop"
+    if exc.errno == errno.ENOENT:
+        return "not found (a dangling link, or moved or deleted?)"
+    if exc.errno in (errno.EACCES, errno.EPERM):
+        return "permission denied"
+    return exc.strerror or str(exc)
+
+
+def _identity(st: os.stat_result) -> tuple[int, int]:
+    return st.st_dev, st.st_ino
+
+
+def _stat_identity(path: Path) -> tuple[int, int] | None:
+    try:
+        return _identity(os.stat(path))
+    except OSError:
+        return None
+
+
+@dataclass
+class _Walk:
+    """One walk of an input folder: the folders seen (by device and inode) and the folders never to enter."""
+
+    excluded: frozenset[tuple[int, int]]
+    out: Discovery
+    seen: dict[tuple[int, int], Path] = field(default_factory=dict)
+
+    def walk(self, root: Path) -> Iterator[tuple[Path, Path, str | None]]:
+        """Yield ``(source, relative name, problem)`` for the clips under ``root``, depth first in sorted order.
+
+        An explicit stack, not recursion: a hostile tree may be thousands of folders deep.
+        """
+        root_id = _stat_identity(root)
+        if root_id is None:
+            return
+        if root_id in self.excluded:
+            self.out.problems.append(PathProblem(str(root), f"{root}: skipped: it is the output folder", failed=False))
+            return
+        self.seen[root_id] = root
+        stack = [root]
+        while stack:
+            folder = stack.pop()
+            try:
+                with os.scandir(folder) as it:
+                    names = sorted(e.name for e in it if not e.name.startswith("."))
+            except OSError as exc:
+                self.out.problems.append(PathProblem(str(folder), f"{folder}: cannot search this folder: {_cause(exc)}"))
+                continue
+            subfolders: list[Path] = []
+            files: list[tuple[Path, str | None]] = []
+            for name in names:
+                path = folder / name
+                suffix = path.suffix.lower()
+                side = suffix in IMAGE_SUFFIXES or suffix in _SIDE_SUFFIXES
+                try:
+                    st = os.stat(path)
+                except OSError as exc:
+                    if suffix in VIDEO_SUFFIXES:
+                        files.append((path, f"{path}: {_cause(exc)}"))
+                    elif not side:
+                        self.out.problems.append(PathProblem(str(path), f"{path}: skipped: {_cause(exc)}", failed=False))
+                    continue
+                if stat.S_ISDIR(st.st_mode):
+                    subfolders.append(path)
+                elif stat.S_ISREG(st.st_mode):
+                    files.append((path, None))
+                elif suffix in VIDEO_SUFFIXES:
+                    files.append((path, f"{path}: not a regular file"))
+                elif not side:
+                    self.out.problems.append(PathProblem(str(path), f"{path}: skipped: not a regular file", failed=False))
+            descend: list[Path] = []
+            for sub in subfolders:
+                ident = _stat_identity(sub)
+                if ident is None:  # vanished since the listing
+                    continue
+                if ident in self.excluded:
+                    continue  # the output folder: never an input (not worth a line)
+                if ident in self.seen:
+                    self.out.problems.append(PathProblem(
+                        str(sub), f"{sub}: skipped: the same folder as {self.seen[ident]} (a link), searched once",
+                        failed=False))
+                    continue
+                self.seen[ident] = sub
+                if os.path.lexists(sub / OUTPUT_MARKER):
+                    self.out.problems.append(PathProblem(
+                        str(sub), f"{sub}: skipped: a colonlight output folder (it holds {OUTPUT_MARKER})", failed=False))
+                    continue
+                if is_image_folder(sub):
+                    yield sub, sub.relative_to(root), None  # a frame folder is one clip: do not descend
+                else:
+                    descend.append(sub)
+            for path, problem in files:
+                suffix = path.suffix.lower()
+                if suffix in IMAGE_SUFFIXES or suffix in _SIDE_SUFFIXES:
+                    continue
+                if problem is not None or suffix in VIDEO_SUFFIXES or is_video(path):
+                    yield path, _strip_suffix(path.relative_to(root)), problem
+            stack.extend(reversed(descend))
+
+
+def _direct(inp: Path) -> tuple[Path, Path, str | None]:
+    """A path named on the command line that is not a folder to walk: one clip, maybe already known to fail."""
+    # abspath: "." or "videos/.." must not name the clip "." or "..", which would write into (or above) OUT
+    rel = Path(_strip_suffix(Path(os.path.basename(os.path.abspath(inp)) or "clip")))
+    try:
+        st = os.stat(inp)
+    except OSError as exc:
+        return inp, rel, f"{inp}: {_cause(exc)}"
+    if not (stat.S_ISREG(st.st_mode) or stat.S_ISDIR(st.st_mode)):
+        return inp, rel, f"{inp}: not a regular file or folder"
+    return inp, rel, None
+
+
+def discover(
+    inputs: Sequence[Path],
+    out_root: Path,
+    pattern: str | None = None,
+    exclude: Sequence[Path] = (),
+) -> Discovery:
+    """The clips under ``inputs`` (files and folders, walked recursively), with their output folders, and the
+    paths that could not be used. Never raises for a bad path.
+
+    ``pattern`` (a glob) keeps clips whose relative path or file name matches. ``exclude``: folders never
+    searched (the batch's output folder). Two clips that would share an output folder are told apart by their
+    suffix (``clip-mp4``, ``clip-avi``).
+    """
+    out = Discovery()
+    excluded = frozenset(i for i in (_stat_identity(Path(p)) for p in exclude) if i is not None)
+    walker = _Walk(excluded, out)
+    found: list[tuple[Path, Path, str | None]] = []
+    for inp in inputs:
+        inp = Path(inp)
+        if os.path.isdir(inp) and not is_image_folder(inp):
+            found.extend(walker.walk(inp))
+        else:  # a file, a frame folder, or a path that cannot be used (it fails when the clip runs)
+            found.append(_direct(inp))
+    if pattern:
+        found = [
+            (src, rel, problem)
+            for src, rel, problem in found
+            if fnmatch.fnmatch(src.name, pattern) or fnmatch.fnmatch(rel.as_posix(), pattern)
+            or fnmatch.fnmatch((rel.parent / src.name).as_posix(), pattern)
+        ]
+    counts: dict[str, int] = {}
+    for _, rel, _ in found:
+        counts[rel.as_posix()] = counts.get(rel.as_posix(), 0) + 1
+    seen: set[tuple[str, str]] = set()
+    for src, rel, problem in found:
+        name = rel.as_posix()
+        if counts[name] > 1 and src.suffix:
+            name = f"{name}-{src.suffix.lstrip('.').lower()}"
+        key = (os.path.realpath(src), name)  # realpath, unlike Path.resolve, never raises on a link loop
+        if key in seen:
+            continue
+        seen.add(key)
+        out.jobs.append(ClipJob(source=src, name=name, out_dir=Path(out_root) / name, problem=problem))
+    return out
+
+
+def discover_clips(inputs: Sequence[Path], out_root: Path, pattern: str | None = None) -> list[ClipJob]:
+    """The clips of :func:`discover` (for callers that need no report of unusable paths)."""
+    return discover(inputs, out_root, pattern).jobs
+
+
+__all__ = ["OUTPUT_MARKER", "VIDEO_SUFFIXES", "ClipJob", "Discovery", "PathProblem", "discover", "discover_clips"]
