@@ -35,6 +35,7 @@ def enhance(
     workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1, envvar="COLONLIGHT_WORKERS", help="Clips processed in parallel (default: one per two cores)."),
     cluster: Optional[str] = typer.Option(None, "--cluster", envvar="COLONLIGHT_CLUSTER", help="Dask scheduler address (tcp://HOST:8786) to run clips on."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Redo clips whose outputs are complete (default: skip them)."),
+    max_pixels: int = options.MaxPixels,
     quiet: bool = options.Quiet,
     debug: bool = options.Debug,
 ) -> None:
@@ -43,10 +44,11 @@ def enhance(
         raise typer.BadParameter(f"unknown method {method!r}; available: {', '.join(available_methods())}", param_hint="--method")
     if fmt not in ("png", "jpg"):
         raise typer.BadParameter("choose png or jpg", param_hint="--format")
-    if fps < 0:
-        raise typer.BadParameter("must be >= 0", param_hint="--fps")
+    options.check_fps(fps)
     try:
-        clip_opts = ClipOptions(fps=fps or None, frames=frames, video=video, format=fmt, quality=quality)
+        clip_opts = ClipOptions(
+            fps=fps or None, frames=frames, video=video, format=fmt, quality=quality, max_pixels=max_pixels
+        )
     except ValueError as exc:
         raise typer.BadParameter(str(exc)) from exc
     spec = MethodSpec.of(method, **options.method_options(method, weights, model_size, device, gamma))

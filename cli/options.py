@@ -7,6 +7,8 @@ from typing import Optional
 
 import typer
 
+from colonlight.limits import DEFAULT_MAX_PIXELS, MAX_FPS, MAX_PIXELS_ENV
+
 Device = typer.Option("auto", "--device", envvar="COLONLIGHT_DEVICE", help="auto | cpu | cuda | cuda:N.")
 Method = typer.Option("rnn", "--method", "-m", envvar="COLONLIGHT_METHOD", help="Enhancement method (see `colonlight info`).")
 Weights: Optional[Path] = typer.Option(
@@ -17,6 +19,10 @@ ModelSize = typer.Option(
     None, "--model-size", envvar="COLONLIGHT_MODEL_SIZE",
     help="Network input size in pixels, 'full' for full-resolution input (the release's way), or 'auto' (the "
          "default): the size the weights were trained at (their card; 48 for the shipped model), else 48.",
+)
+MaxPixels = typer.Option(
+    DEFAULT_MAX_PIXELS, "--max-pixels", envvar=MAX_PIXELS_ENV, min=1,
+    help="Largest frame (width x height) a clip may have; larger clips fail from their header, before decoding.",
 )
 Debug = typer.Option(False, "--debug", envvar="COLONLIGHT_DEBUG", help="Show tracebacks of errors.")
 Quiet = typer.Option(False, "--quiet", "-q", envvar="COLONLIGHT_QUIET", help="No live display: one line per clip, for logs.")
@@ -63,3 +69,10 @@ def invocation(ctx: typer.Context) -> str:
             for v in values:
                 words += [param.opts[0], str(v)]
     return " ".join(shlex.quote(w) for w in words)
+
+
+def check_fps(fps: float) -> None:
+    """A usage error unless ``0 <= fps <= MAX_FPS`` (the service's bound too)."""
+    if not 0 <= fps <= MAX_FPS:
+        raise typer.BadParameter(f"must be within 0..{MAX_FPS:g} frames per second (0 keeps every frame), got {fps:g}",
+                                 param_hint="--fps")

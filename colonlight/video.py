@@ -30,7 +30,8 @@ import numpy as np
 from av.video.reformatter import VideoReformatter
 
 from .atomic import atomic_path
-from .errors import InputError
+from .errors import FrameTooLargeError, InputError
+from .limits import max_pixels_setting
 
 log = logging.getLogger(__name__)
 
@@ -105,11 +106,28 @@ class FpsDecision:
     pts: int
 
 
+@dataclass(frozen=True)
+class FpsRun:
+    """Source frame ``source_index`` is output ``count`` times in a row: output frames ``index`` ..
+    ``index + count - 1`` at output pts ``pts`` .. ``pts + count - 1``. A run is a few integers however long
+    the repeat (a 60 s timestamp gap at 18 fps is one run of 1080), so a caller can stream the copies."""
+
+    index: int
+    source_index: int
+    pts: int
+    count: int
+
+    def decisions(self) -> Iterator[FpsDecision]:
+        for k in range(self.count):
+            yield FpsDecision(self.index + k, self.source_index, self.pts + k)
+
+
 class FpsSelector:
     """Which source frames FFmpeg's ``fps`` filter outputs, decided from presentation timestamps alone.
 
     Push every decoded frame's pts (``time_base`` units) in decoding order, then :meth:`close` with the
-    end-of-stream pts; both return the decisions made so far. Like the filter it holds at most two frames,
+    end-of-stream pts; both return the decisions made so far (:meth:`push_runs` and :meth:`close_runs` return
+    them as runs of repeats instead, in constant memory). Like the filter it holds at most two frames,
     so a caller keeps only the frames listed in :attr:`pending`. The rules, from ``vf_fps.c``:
 
     * each input pts is rescaled to the output time base 1/fps, to nearest, halves away from zero
@@ -139,35 +157,43 @@ class FpsSelector:
 
     def push(self, pts: int) -> list[FpsDecision]:
         """Add the next decoded frame; return the output decisions it allows."""
+        return [d for run in self.push_runs(pts) for d in run.decisions()]
+
+    def close(self, eof_pts: int) -> list[FpsDecision]:
+        """End of stream at ``eof_pts`` (``time_base`` units); return the remaining decisions."""
+        return [d for run in self.close_runs(eof_pts) for d in run.decisions()]
+
+    def push_runs(self, pts: int) -> list[FpsRun]:
+        """:meth:`push`, with the decisions as runs (at most one)."""
         if self._closed:
             raise RuntimeError("FpsSelector.push after close")
         self._buf.append((self._pushed, rescale_near(pts, self.time_base, self._out_tb)))
         self._pushed += 1
-        out: list[FpsDecision] = []
+        out: list[FpsRun] = []
         while len(self._buf) == 2:
             self._step(None, out)
         return out
 
-    def close(self, eof_pts: int) -> list[FpsDecision]:
-        """End of stream at ``eof_pts`` (``time_base`` units); return the remaining decisions."""
+    def close_runs(self, eof_pts: int) -> list[FpsRun]:
+        """:meth:`close`, with the decisions as runs (at most two)."""
         self._closed = True
         eof = rescale_near(eof_pts, self.time_base, self._out_tb)
-        out: list[FpsDecision] = []
+        out: list[FpsRun] = []
         while self._buf:
             self._step(eof, out)
         return out
 
-    def _step(self, eof: int | None, out: list[FpsDecision]) -> None:
+    def _step(self, eof: int | None, out: list[FpsRun]) -> None:
+        """Output the oldest frame until the next one (or EOF) is due, then drop it (one ``write_frame`` loop)."""
         if self._next_pts is None:
             self._next_pts = self._buf[0][1]
-        if (len(self._buf) == 2 and self._buf[1][1] <= self._next_pts) or (
-            eof is not None and eof <= self._next_pts
-        ):
-            self._buf.popleft()
-            return
-        out.append(FpsDecision(self._emitted, self._buf[0][0], self._next_pts))
-        self._emitted += 1
-        self._next_pts += 1
+        limits = ([self._buf[1][1]] if len(self._buf) == 2 else []) + ([eof] if eof is not None else [])
+        count = max(0, min(limits) - self._next_pts)
+        if count:
+            out.append(FpsRun(self._emitted, self._buf[0][0], self._next_pts, count))
+            self._emitted += count
+            self._next_pts += count
+        self._buf.popleft()
 
 
 class _FfmpegTimestamps:
@@ -350,11 +376,18 @@ def _looks_like_mp4(path: Path) -> bool:
         return False
 
 
-def _open(path: Path) -> tuple[Any, Any]:
-    """Open ``path`` and pick its main video stream; InputError if it is not a video."""
+def _open(path: Path, max_pixels: int | None = None) -> tuple[Any, Any]:
+    """Open ``path`` and pick its main video stream; InputError if it is not a video.
+
+    FrameTooLargeError if the stream header gives more than ``max_pixels`` (None: the configured cap) pixels,
+    raised before any frame is decoded: libavcodec's own ``max_pixels`` is set to the cap for the stream probe
+    (``avformat_find_stream_info`` decodes a few frames) and for the decoder, so that not even a frame whose
+    header lied about its size can be decoded past the cap.
+    """
     _check_file(path)
+    cap = max_pixels_setting() if max_pixels is None else int(max_pixels)
     try:
-        container = av.open(str(path), mode="r", metadata_errors="replace")
+        container = av.open(str(path), mode="r", metadata_errors="replace", options={"max_pixels": str(cap)})
     except (av.error.FFmpegError, OSError, UnicodeError, ValueError) as exc:
         if isinstance(exc, av.error.InvalidDataError) and _looks_like_mp4(path):
             raise _error(path, "truncated or unfinished MP4/MOV: its index ('moov') is missing") from exc
@@ -371,6 +404,10 @@ def _open(path: Path) -> tuple[Any, Any]:
         stream = best if best in candidates else candidates[0]
         if stream.codec_context is None:
             raise _error(path, "no decoder for its video codec")
+        width, height = stream.codec_context.width or 0, stream.codec_context.height or 0
+        if width * height > cap:
+            raise FrameTooLargeError(path, width, height, cap)
+        stream.codec_context.options = {"max_pixels": str(cap)}
         stream.codec_context.thread_type = "AUTO"  # frame + slice threads: ~1.5x faster on HD
     except BaseException:
         container.close()
@@ -424,10 +461,25 @@ def _frames(path: Path, container: Any, stream: Any) -> Iterator[Any]:
 # ------------------------------------------------------------------------------------------------------------
 
 
-def probe_video(path: Path) -> VideoInfo:
-    """Describe the clip at ``path``, decoding its first frame; InputError if it is no decodable video."""
+def probe_frame_size(path: Path, max_pixels: int | None = None) -> tuple[int, int]:
+    """``(width, height)`` of the clip's video stream as its header gives it (coded size, before rotation),
+    without decoding a frame: the cheap check to make before accepting a clip.
+
+    Raises :class:`~colonlight.errors.FrameTooLargeError` if ``width x height`` exceeds ``max_pixels`` (None: the
+    configured cap, :func:`colonlight.limits.max_pixels_setting`), :class:`InputError` if it is no video.
+    """
     path = Path(path)
-    container, stream = _open(path)
+    container, stream = _open(path, max_pixels)
+    with container:
+        return int(stream.codec_context.width or 0), int(stream.codec_context.height or 0)
+
+
+def probe_video(path: Path, max_pixels: int | None = None) -> VideoInfo:
+    """Describe the clip at ``path``, decoding its first frame; InputError if it is no decodable video.
+
+    FrameTooLargeError, before decoding, if its frames exceed ``max_pixels`` (None: the configured cap)."""
+    path = Path(path)
+    container, stream = _open(path, max_pixels)
     with container:
         first = next(iter(_frames(path, container, stream)), None)
         if first is None:
@@ -459,12 +511,14 @@ def is_video(path: Path) -> bool:
     try:
         probe_video(Path(path))
         return True
+    except FrameTooLargeError:  # a video, too large to decode: reported when it runs, not ignored
+        return True
     except Exception:  # noqa: BLE001 - a yes/no sniff: any failure means "not a video we can use"
         return False
 
 
 def iter_video_frames(
-    path: Path, fps: float | Fraction | None = DEFAULT_FPS, *, min_frames: int = 0
+    path: Path, fps: float | Fraction | None = DEFAULT_FPS, *, min_frames: int = 0, max_pixels: int | None = None
 ) -> Iterator[DecodedFrame]:
     """Decode ``path`` into upright RGB frames at ``fps``, exactly the frames FFmpeg's ``fps`` filter picks.
 
@@ -472,10 +526,12 @@ def iter_video_frames(
     fewer decoded source frames is an InputError, raised before any frame is yielded. A clip that fails
     part-way (corrupt data) yields what decoded, then raises InputError naming the file and the frame reached;
     an mp4/mov cut short (index past the end of file) is refused before the first frame. Memory is constant
-    in clip length: at most two source frames (plus ``min_frames``) are held.
+    in clip length and in repeats: at most two source frames (plus ``min_frames``) are held, and a frame that
+    the fps conversion repeats is copied as each repeat is taken. Frames of more than ``max_pixels`` pixels
+    (None: the configured cap) are refused from the stream header (FrameTooLargeError) before any is decoded.
     """
     path = Path(path)
-    container, stream = _open(path)
+    container, stream = _open(path, max_pixels)
     with container:
         _check_index(path, stream)
         selector = FpsSelector(fps, stream.time_base) if fps else None
@@ -492,7 +548,6 @@ def _decode(
     size: tuple[int, ...] | None = None
     start: int | None = None
     decoded = 0
-    last_source = -1
     transform: Transform | None = None
     # One swscale context (and pool of scaler threads) for the whole clip: ``frame.to_ndarray(format="rgb24")``
     # makes a new context, and starts new scaler threads, for every frame (1350x1080: 1.2 ms of CPU and 3-4 ms of
@@ -521,16 +576,21 @@ def _decode(
             )
         return rgb
 
-    def emit(decisions: list[FpsDecision], rate: float) -> None:
-        nonlocal last_source
-        for d in decisions:
-            frame, t_src = held[d.source_index]
-            image = convert(frame, d.source_index)
-            if d.source_index == last_source:
-                image = image.copy()  # a duplicate gets its own buffer: callers may change frames in place
-            last_source = d.source_index
-            ready.append(DecodedFrame(image, d.index, d.source_index, d.index / rate, t_src))
+    def expand(runs: deque[FpsRun], rate: float) -> Iterator[DecodedFrame]:
+        """The output frames of ``runs``, one at a time: a source frame repeated n times is converted once and
+        handed out as n separate buffers made as they are asked for, so repeats never pile up in memory."""
+        while runs:
+            run = runs.popleft()
+            frame, t_src = held[run.source_index]
+            image = convert(frame, run.source_index)
+            for k in range(run.count):
+                index = run.index + k
+                # every repeat but the last gets its own copy of the pristine image: callers may change frames
+                # in place, and the copies are made one by one as the consumer takes them
+                out = image if k == run.count - 1 else image.copy()
+                yield DecodedFrame(out, index, run.source_index, index / rate, t_src)
 
+    runs: deque[FpsRun] = deque()  # decided, not yet handed out (only while fewer than min_frames decoded)
     for frame in _frames(path, container, stream):
         pts = ts.frame_pts(frame)
         if start is None:  # source times count from the stream start, in the same shifted pts domain
@@ -540,20 +600,24 @@ def _decode(
         decoded += 1
         if selector is None:
             ready.append(DecodedFrame(convert(frame, index), index, index, t_src, t_src))
-        else:
-            held[index] = (frame, t_src)
-            emit(selector.push(pts), float(selector.fps))
-            for k in [k for k in held if k not in selector.pending]:
-                del held[k]
+            if decoded >= min_frames:
+                while ready:
+                    yield ready.popleft()
+            continue
+        held[index] = (frame, t_src)
+        runs.extend(selector.push_runs(pts))
         if decoded >= min_frames:
-            while ready:
-                yield ready.popleft()
+            yield from expand(runs, float(selector.fps))
+            keep = set(selector.pending)
+            for k in [k for k in held if k not in keep]:
+                del held[k]
     if decoded == 0:
         raise _error(path, "no decodable video frames (truncated or corrupt?)")
     if decoded < min_frames:
         raise _error(path, f"too short: {decoded} frame(s) decoded, at least {min_frames} needed")
     if selector is not None:
-        emit(selector.close(ts.eof_pts()), float(selector.fps))
+        runs.extend(selector.close_runs(ts.eof_pts()))
+        yield from expand(runs, float(selector.fps))
     while ready:
         yield ready.popleft()
 
