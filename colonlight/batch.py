@@ -55,6 +55,8 @@ class ClipOutcome:
     skipped: bool = False
     error: str | None = None
     detail: str | None = None  # traceback of an unexpected error (shown with --debug)
+    truncated: bool = False  # done from a source that looks cut short (the frames that decode)
+    warnings: tuple[str, ...] = ()  # one line each, without the path
 
 
 @dataclass(frozen=True)
@@ -188,7 +190,8 @@ def run_clip(
             clip_name=job.name,
             on_frame=(lambda n: progress("frames", job.name, {"done": n})) if progress else None,
         )
-        return ClipOutcome(job.name, str(job.source), "done", frames=result.frames, seconds=result.seconds)
+        return ClipOutcome(job.name, str(job.source), "done", frames=result.frames, seconds=result.seconds,
+                           truncated=result.truncated, warnings=result.warnings)
     except ColonlightError as exc:
         return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0, error=str(exc))
     except ValueError as exc:  # bad option values reach here from method construction
@@ -236,6 +239,10 @@ class Manifest:
             entry["skipped"] = True
         if outcome.error:
             entry["error"] = outcome.error
+        if outcome.truncated:
+            entry["truncated"] = True
+        if outcome.warnings:
+            entry["warnings"] = list(outcome.warnings)
         self.clips[outcome.name] = entry
         self.save()
 

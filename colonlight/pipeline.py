@@ -39,7 +39,7 @@ from .limits import MAX_FPS, max_pixels_setting
 from .methods.base import FrameResult, Method
 from .provenance import library_versions
 from .sources import clip_frames
-from .video import DecodedFrame, VideoWriter
+from .video import DecodedFrame, DecodeReport, VideoWriter
 
 GAMMAS_FILE = "gammas.json"
 FRAMES_DIR = "frames"
@@ -117,6 +117,8 @@ class ClipResult:
     out_dir: Path
     frames: int
     seconds: float
+    truncated: bool = False  # the source looks cut short: its frames that decode were used (see warnings)
+    warnings: tuple[str, ...] = ()  # one line each, without the path (also in gammas.json)
 
 
 def settings_record(method: Method, opts: ClipOptions) -> dict[str, Any]:
@@ -269,8 +271,10 @@ def enhance_clip(
     fps_out = opts.fps or None
 
     stop = threading.Event()
+    report = DecodeReport()
     frames = clip_frames(
-        source, fps=fps_out, folder_fps=opts.folder_fps, min_frames=MIN_FRAMES, max_pixels=opts.max_pixels
+        source, fps=fps_out, folder_fps=opts.folder_fps, min_frames=MIN_FRAMES, max_pixels=opts.max_pixels,
+        report=report,
     )
     decoded = _prefetch(frames, stop)
     # Hold two frames before writing anything, so that a clip too short to enhance leaves nothing behind.
@@ -342,10 +346,18 @@ def enhance_clip(
         "versions": library_versions(),
         "settings": settings,
         "frame_count": len(records),
-        "frames": records,
     }
+    warnings = tuple(report.warnings)
+    if report.truncated:  # only then: a sound clip's gammas.json keeps its bytes
+        gammas["truncated"] = True
+    if warnings:
+        gammas["warnings"] = list(warnings)
+    gammas["frames"] = records
     write_json_atomic(out_dir / GAMMAS_FILE, gammas)
-    return ClipResult(clip=clip_name, out_dir=out_dir, frames=len(records), seconds=time.perf_counter() - t0)
+    return ClipResult(
+        clip=clip_name, out_dir=out_dir, frames=len(records), seconds=time.perf_counter() - t0,
+        truncated=report.truncated is not None, warnings=warnings,
+    )
 
 
 def _source_rate(head: list[DecodedFrame]) -> float:

@@ -11,7 +11,7 @@ from pathlib import Path
 from .errors import InputError
 from .frames import check_image_size, is_image_folder, iter_image_folder, list_image_frames
 from .limits import max_pixels_setting
-from .video import DecodedFrame, iter_video_frames, probe_frame_size
+from .video import DecodedFrame, DecodeReport, iter_video_frames, probe_frame_size
 
 
 def clip_kind(path: Path) -> str:
@@ -50,6 +50,7 @@ def clip_frames(
     folder_fps: float = 18.0,
     min_frames: int = 0,
     max_pixels: int | None = None,
+    report: DecodeReport | None = None,
 ) -> Iterator[DecodedFrame]:
     """Frames of a clip in order: a video resampled to ``fps`` (``None``/0 keeps all), or every image of a folder.
 
@@ -57,7 +58,10 @@ def clip_frames(
     ``min_frames`` counts *source* frames (a single still shown for a second would otherwise give 18 outputs)
     and raises :class:`InputError` before anything is yielded when the clip has fewer. Frames of more than
     ``max_pixels`` pixels (None: the configured cap) are refused from their header, before they are decoded.
+    A video's ``report`` learns what decoding found besides frames (a truncated file, damaged packets).
     """
     if clip_kind(path) == "video":
-        return iter_video_frames(Path(path), fps=fps or None, min_frames=min_frames, max_pixels=max_pixels)
+        return iter_video_frames(
+            Path(path), fps=fps or None, min_frames=min_frames, max_pixels=max_pixels, report=report
+        )
     return iter_image_folder(Path(path), fps=folder_fps, min_frames=min_frames, max_pixels=max_pixels)
