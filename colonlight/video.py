@@ -516,18 +516,10 @@ def _looks_like_mp4(path: Path) -> bool:
         return False
 
 
-def _open(path: Path, max_pixels: int | None = None) -> tuple[Any, Any]:
-    """Open ``path`` and pick its main video stream; InputError if it is not a video.
-
-    FrameTooLargeError if the stream header gives more than ``max_pixels`` (None: the configured cap) pixels,
-    raised before any frame is decoded: libavcodec's own ``max_pixels`` is set to the cap for the stream probe
-    (``avformat_find_stream_info`` decodes a few frames) and for the decoder, so that not even a frame whose
-    header lied about its size can be decoded past the cap.
-    """
-    _check_file(path)
-    cap = max_pixels_setting() if max_pixels is None else int(max_pixels)
+def _open_container(path: Path, options: dict[str, str]) -> tuple[Any, Any]:
+    """``av.open`` with ``options`` for its stream probe, and the main video stream; InputError if no video."""
     try:
-        container = av.open(str(path), mode="r", metadata_errors="replace", options={"max_pixels": str(cap)})
+        container = av.open(str(path), mode="r", metadata_errors="replace", options=options)
     except (av.error.FFmpegError, OSError, UnicodeError, ValueError) as exc:
         if isinstance(exc, av.error.InvalidDataError) and _looks_like_mp4(path):
             raise _error(path, "truncated or unfinished MP4/MOV: its index ('moov') is missing") from exc
@@ -548,9 +540,42 @@ def _open(path: Path, max_pixels: int | None = None) -> tuple[Any, Any]:
         stream = best if best in candidates else candidates[0]
         if stream.codec_context is None:
             raise _error(path, "no decoder for its video codec")
-        width, height = stream.codec_context.width or 0, stream.codec_context.height or 0
-        if width * height > cap:
-            raise FrameTooLargeError(path, width, height, cap)
+    except BaseException:
+        container.close()
+        raise
+    return container, stream
+
+
+def _check_size(path: Path, stream: Any, cap: int) -> tuple[int, int]:
+    width, height = int(stream.codec_context.width or 0), int(stream.codec_context.height or 0)
+    if width * height > cap:
+        raise FrameTooLargeError(path, width, height, cap)
+    return width, height
+
+
+def _header_size(path: Path, cap: int) -> tuple[int, int]:
+    """The main video stream's size from the container and codec headers, decoding nothing: the stream probe
+    (``avformat_find_stream_info``, which otherwise decodes a few frames) runs with ``skip_frame=all``.
+    FrameTooLargeError past ``cap``; (0, 0) if the headers do not say."""
+    container, stream = _open_container(path, {"skip_frame": "all"})
+    with container:
+        return _check_size(path, stream, cap)
+
+
+def _open(path: Path, max_pixels: int | None = None) -> tuple[Any, Any]:
+    """Open ``path`` for decoding and pick its main video stream; InputError if it is not a video.
+
+    FrameTooLargeError if the headers give more than ``max_pixels`` (None: the configured cap) pixels, raised
+    before any frame is decoded (:func:`_header_size`). libavcodec's own ``max_pixels`` is then set to the cap,
+    for the stream probe and for the decoder, so that not even a frame whose header lied (or said nothing) about
+    its size can be decoded past the cap.
+    """
+    _check_file(path)
+    cap = max_pixels_setting() if max_pixels is None else int(max_pixels)
+    _header_size(path, cap)
+    container, stream = _open_container(path, {"max_pixels": str(cap)})
+    try:
+        _check_size(path, stream, cap)
         stream.codec_context.options = {"max_pixels": str(cap)}
         stream.codec_context.thread_type = "AUTO"  # frame + slice threads: ~1.5x faster on HD
     except BaseException:
@@ -669,9 +694,8 @@ def probe_frame_size(path: Path, max_pixels: int | None = None) -> tuple[int, in
     configured cap, :func:`colonlight.limits.max_pixels_setting`), :class:`InputError` if it is no video.
     """
     path = Path(path)
-    container, stream = _open(path, max_pixels)
-    with container:
-        return int(stream.codec_context.width or 0), int(stream.codec_context.height or 0)
+    _check_file(path)
+    return _header_size(path, max_pixels_setting() if max_pixels is None else int(max_pixels))
 
 
 def probe_video(path: Path, max_pixels: int | None = None) -> VideoInfo:

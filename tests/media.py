@@ -125,6 +125,14 @@ def make_clip(
     return path
 
 
+def make_solid_clip(path: Path, size: tuple[int, int], n_frames: int = 2, fps: int = 6) -> Path:
+    """A grey H.264 clip from FFmpeg's ``color`` source: cheap at any size (e.g. a tiny file of huge frames)."""
+    w, h = size
+    _run(["-f", "lavfi", "-i", f"color=gray:s={w}x{h}:r={fps}", "-frames:v", str(n_frames),
+          "-c:v", "libx264", "-preset", "ultrafast", "-y", str(path)])
+    return Path(path)
+
+
 def make_vfr_clip(
     path: Path,
     times_s: Sequence[float],
