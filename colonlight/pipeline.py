@@ -252,7 +252,7 @@ def enhance_clip(
     source: Path,
     out_dir: Path,
     method: Method,
-    opts: ClipOptions = ClipOptions(),
+    opts: ClipOptions | None = None,
     *,
     clip_name: str | None = None,
     on_frame: Callable[[int], None] | None = None,
@@ -263,6 +263,7 @@ def enhance_clip(
     this clip are then left without a ``gammas.json`` and a rerun redoes the clip.
     """
     t0 = time.perf_counter()
+    opts = ClipOptions() if opts is None else opts
     source, out_dir = Path(source), Path(out_dir)
     clip_name = clip_name or source.stem
     out_dir.mkdir(parents=True, exist_ok=True)
