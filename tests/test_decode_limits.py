@@ -27,7 +27,7 @@ from colonlight.sources import check_frame_size, clip_frames
 from colonlight.video import is_video, iter_video_frames, probe_frame_size
 from colonlight_cli.main import app
 
-from .media import make_clip, make_image_folder, make_solid_clip, needs_ffmpeg
+from .media import joined, make_clip, make_image_folder, make_solid_clip, needs_ffmpeg, remux
 
 runner = CliRunner()
 
@@ -92,6 +92,29 @@ def test_bomb_is_refused_from_its_header_with_little_memory(bomb: Path) -> None:
                          timeout=120, check=True).stdout.split()
     assert out[:3] == ["6000", "6000", str(DEFAULT_MAX_PIXELS)], out
     assert int(out[3]) * 1024 < 40e6, f"the header check grew memory by {int(out[3]) / 1024:.0f} MB"
+
+
+@needs_ffmpeg
+def test_frames_growing_past_the_cap_mid_stream_are_not_decoded(tmp_path: Path, bomb: Path) -> None:
+    """A small recording joined to a bomb: the header is small, the decoder itself refuses the large frames."""
+    clip = joined([make_clip(tmp_path / "small.ts", 20, 25), remux(bomb, tmp_path / "bomb.ts")], tmp_path / "mix.ts")
+    code = (
+        "import resource, sys\n"
+        "from colonlight.errors import InputError\n"
+        "from colonlight.video import iter_video_frames\n"
+        "base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
+        "n = 0\n"
+        "try:\n"
+        "    for f in iter_video_frames(sys.argv[1], 18):\n"
+        "        n += 1\n"
+        "except InputError as e:\n"
+        "    print(n, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - base, e)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != MAX_PIXELS_ENV}
+    out = subprocess.run([sys.executable, "-c", code, str(clip)], capture_output=True, text=True, env=env,
+                         timeout=120, check=True).stdout.split(maxsplit=2)
+    assert len(out) == 3 and int(out[0]) <= 15 and out[2].startswith(str(clip)), out
+    assert int(out[1]) * 1024 < 80e6, f"decoding grew memory by {int(out[1]) / 1024:.0f} MB: a 36 Mpx frame was made"
 
 
 @needs_ffmpeg
