@@ -9,6 +9,10 @@ frame ``k``. :class:`FpsSelector` models ``libavfilter/vf_fps.c``; :func:`iter_v
 timestamps the ``ffmpeg`` tool would feed it (``fftools/ffmpeg_demux.c``, ``ffmpeg_opt.c``, ``ffmpeg_dec.c``).
 
 Container metadata (frame counts, durations) is never trusted: decoding alone decides how many frames exist.
+It only warns: a file shorter than its container's own size field is reported as truncated (:class:`DecodeReport`).
+
+Nothing the input claims can make memory grow: frames larger than the pixel cap are refused from the headers
+before decoding, and a frame that the fps conversion repeats is handed out one copy at a time (:class:`FpsRun`).
 """
 
 from __future__ import annotations

@@ -13,12 +13,13 @@ import subprocess
 import sys
 import threading
 import tracemalloc
+from fractions import Fraction
 from pathlib import Path
 
 import pytest
 
 from colonlight.pipeline import peak_rss_bound
-from colonlight.video import iter_video_frames
+from colonlight.video import FpsRun, FpsSelector, iter_video_frames
 
 from .media import ffmpeg_fps_indices, make_vfr_clip, needs_ffmpeg, read_index
 
@@ -42,6 +43,14 @@ def run_measured(cmd: list[str], timeout: float = 300) -> tuple[int, str, int]:
         killer.cancel()
     proc.returncode = os.waitstatus_to_exitcode(status)
     return proc.returncode, stderr.decode(errors="replace"), usage.ru_maxrss * 1024
+
+
+def test_a_gap_of_an_hour_is_one_run() -> None:
+    sel = FpsSelector(18, Fraction(1, 1000))
+    runs = sel.push_runs(0) + sel.push_runs(40) + sel.push_runs(3_600_040) + sel.close_runs(3_600_100)
+    assert runs == [FpsRun(0, 0, 0, 1), FpsRun(1, 1, 1, 64800), FpsRun(64801, 2, 64801, 1)]
+    expanded = [d for r in runs for d in r.decisions()]
+    assert [d.index for d in expanded] == list(range(64802)) and expanded[-1].source_index == 2
 
 
 @needs_ffmpeg
