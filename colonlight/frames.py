@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import re
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -89,8 +90,10 @@ def check_image_size(path: Path, max_pixels: int | None = None) -> tuple[int, in
 
     cap = max_pixels_setting() if max_pixels is None else int(max_pixels)
     try:
-        with Image.open(path) as img:
-            width, height = int(img.width), int(img.height)
+        with warnings.catch_warnings():  # Pillow warns past 89 Mpx; our cap decides
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as img:
+                width, height = int(img.width), int(img.height)
     except Image.DecompressionBombError:
         raise FrameTooLargeError(path, 0, 0, cap) from None
     except Exception:  # noqa: BLE001 - unknown or broken header: the decoder reports it
