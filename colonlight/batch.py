@@ -179,7 +179,8 @@ def run_clip(
         method = _method_for(spec)
         record = None if overwrite else complete_record(job.out_dir, method, opts)
         if record is not None:
-            return ClipOutcome(job.name, str(job.source), "done", frames=record.get("frame_count", 0), skipped=True)
+            return ClipOutcome(job.name, str(job.source), "done", frames=record.get("frame_count", 0), skipped=True,
+                               truncated=bool(record.get("truncated")), warnings=tuple(record.get("warnings", ())))
         if progress:
             progress("start", job.name, {"total": estimate_frames(job.source, opts.fps)})
         result = enhance_clip(

@@ -96,3 +96,7 @@ def test_cli_marks_a_truncated_clip_done_and_truncated_with_a_warning(sources: d
     assert manifest["cut"]["status"] == "done" and manifest["cut"]["truncated"] is True
     assert manifest["cut"]["frames"] == gammas["frame_count"] > 0
     assert "truncated" not in manifest["whole"] and "warnings" not in manifest["whole"]
+    rerun = CliRunner().invoke(app, ["enhance", str(videos), "-o", str(out), "--method", "none", "-q"])
+    assert rerun.exit_code == 0, rerun.output
+    entry = {c["clip"]: c for c in json.loads((out / "manifest.json").read_text())["clips"]}["cut"]
+    assert entry["skipped"] is True and entry["truncated"] is True  # a skipped clip keeps its flag
