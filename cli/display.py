@@ -133,6 +133,8 @@ class BatchDisplay:
             self._print(f"[dim]skipped[/] {printable(o.name)} (complete)")
         else:
             self._print(f"[green]done[/]    {printable(o.name)}: {o.frames} frames in {o.seconds:.1f} s")
+        for line in o.warnings:
+            self._print(f"[yellow]warning[/] {o.source}: {line}")
 
     def _print(self, text: str) -> None:
         if self.progress:

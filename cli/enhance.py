@@ -72,6 +72,7 @@ def enhance(
     cluster: Optional[str] = typer.Option(None, "--cluster", envvar="COLONLIGHT_CLUSTER", help="Dask scheduler address (tcp://HOST:8786) to run clips on."),
     camera: Optional[Path] = typer.Option(None, "--camera", help="DSO camera.txt or COLMAP cameras.txt to copy beside each clip's frames (checked against their size)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Redo clips whose outputs are complete (default: skip them)."),
+    max_pixels: int = options.MaxPixels,
     quiet: bool = options.Quiet,
     debug: bool = options.Debug,
 ) -> None:
@@ -80,8 +81,7 @@ def enhance(
         raise typer.BadParameter(f"unknown method {method!r}; available: {', '.join(available_methods())}", param_hint="--method")
     if fmt not in ("png", "jpg"):
         raise typer.BadParameter("choose png or jpg", param_hint="--format")
-    if fps < 0:
-        raise typer.BadParameter("must be >= 0", param_hint="--fps")
+    options.check_fps(fps)
     try:
         cam = None if camera is None else read_camera(camera)
     except ColonlightError as exc:
@@ -89,7 +89,7 @@ def enhance(
         raise typer.Exit(2) from None
     try:
         clip_opts = ClipOptions(fps=fps or None, frames=frames, video=video, format=fmt, quality=quality,
-                                camera=None if cam is None else (cam.name, cam.text))
+                                camera=None if cam is None else (cam.name, cam.text), max_pixels=max_pixels)
     except ValueError as exc:
         raise typer.BadParameter(str(exc)) from exc
     spec = MethodSpec.of(method, **options.method_options(method, weights, model_size, device, gamma, runtime))

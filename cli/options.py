@@ -7,6 +7,8 @@ from typing import Optional
 
 import typer
 
+from colonlight.limits import DEFAULT_MAX_PIXELS, MAX_FPS, MAX_PIXELS_ENV
+
 Device = typer.Option("auto", "--device", envvar="COLONLIGHT_DEVICE", help="auto | cpu | cuda | cuda:N.")
 Method = typer.Option("rnn", "--method", "-m", envvar="COLONLIGHT_METHOD", help="Enhancement method (see `colonlight info`).")
 Weights: Optional[Path] = typer.Option(
@@ -22,6 +24,10 @@ Runtime = typer.Option(
     "torch", "--runtime", envvar="COLONLIGHT_RUNTIME",
     help="Where the rnn method's network step runs: torch, or onnxruntime (CPU; the export extra; measured faster "
          "on small CPUs, see the README's benchmarks).",
+)
+MaxPixels = typer.Option(
+    DEFAULT_MAX_PIXELS, "--max-pixels", envvar=MAX_PIXELS_ENV, min=1,
+    help="Largest frame (width x height) a clip may have; larger clips fail from their header, before decoding.",
 )
 Debug = typer.Option(False, "--debug", envvar="COLONLIGHT_DEBUG", help="Show tracebacks of errors.")
 Quiet = typer.Option(False, "--quiet", "-q", envvar="COLONLIGHT_QUIET", help="No live display: one line per clip, for logs.")
@@ -75,3 +81,10 @@ def invocation(ctx: typer.Context) -> str:
             for v in values:
                 words += [param.opts[0], str(v)]
     return " ".join(shlex.quote(w) for w in words)
+
+
+def check_fps(fps: float) -> None:
+    """A usage error unless ``0 <= fps <= MAX_FPS`` (the service's bound too)."""
+    if not 0 <= fps <= MAX_FPS:
+        raise typer.BadParameter(f"must be within 0..{MAX_FPS:g} frames per second (0 keeps every frame), got {fps:g}",
+                                 param_hint="--fps")

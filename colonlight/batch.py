@@ -57,6 +57,8 @@ class ClipOutcome:
     skipped: bool = False
     error: str | None = None
     detail: str | None = None  # traceback of an unexpected error (shown with --debug)
+    truncated: bool = False  # done from a source that looks cut short (the frames that decode)
+    warnings: tuple[str, ...] = ()  # one line each, without the path
 
 
 @dataclass(frozen=True)
@@ -172,7 +174,8 @@ def run_clip(
         method = _method_for(spec)
         record = None if overwrite else complete_record(job.out_dir, method, opts)
         if record is not None:
-            return ClipOutcome(job.name, str(job.source), "done", frames=record.get("frame_count", 0), skipped=True)
+            return ClipOutcome(job.name, str(job.source), "done", frames=record.get("frame_count", 0), skipped=True,
+                               truncated=bool(record.get("truncated")), warnings=tuple(record.get("warnings", ())))
         if progress:
             started = True
             progress("start", job.name, {"total": estimate_frames(job.source, opts.fps)})
@@ -184,7 +187,8 @@ def run_clip(
             clip_name=job.name,
             on_frame=(lambda n: progress("frames", job.name, {"done": n})) if progress else None,
         )
-        return ClipOutcome(job.name, str(job.source), "done", frames=result.frames, seconds=result.seconds)
+        return ClipOutcome(job.name, str(job.source), "done", frames=result.frames, seconds=result.seconds,
+                           truncated=result.truncated, warnings=result.warnings)
     except ColonlightError as exc:
         return failed(str(exc))
     except ValueError as exc:  # bad option values reach here from method construction
@@ -237,6 +241,10 @@ class Manifest:
             entry["skipped"] = True
         if outcome.error:
             entry["error"] = outcome.error
+        if outcome.truncated:
+            entry["truncated"] = True
+        if outcome.warnings:
+            entry["warnings"] = list(outcome.warnings)
         self.clips[outcome.name] = entry
         self.save()
 

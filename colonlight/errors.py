@@ -4,6 +4,7 @@ Hierarchy::
 
     ColonlightError              base of every expected failure; its message is one line for the user
     ├── InputError               a clip or frame folder that cannot be read (names the file and the cause)
+    │   └── FrameTooLargeError   its frames exceed the pixel cap (known from the header, before decoding)
     ├── CheckpointError          a weights file that is missing, corrupt, truncated or of an unknown format
     └── DeviceError              a requested device (e.g. ``cuda:1``) that this machine does not have
 
@@ -19,6 +20,21 @@ class ColonlightError(Exception):
 
 class InputError(ColonlightError):
     """An input clip, image folder or frame that cannot be used."""
+
+
+class FrameTooLargeError(InputError):
+    """A clip whose frames have more pixels than the cap allows; raised from the header, before decoding.
+
+    ``width``, ``height`` and ``max_pixels`` let a shell answer in its own terms (the service: 413/422).
+    """
+
+    def __init__(self, path: object, width: int, height: int, max_pixels: int) -> None:
+        self.path, self.width, self.height, self.max_pixels = path, width, height, max_pixels
+        size = f"{width}x{height} ({width * height / 1e6:.1f} Mpx)" if width and height else "unknown size"
+        super().__init__(
+            f"{path}: frames of {size} exceed the pixel cap of {max_pixels} "
+            f"({max_pixels / 1e6:.1f} Mpx; raise it with COLONLIGHT_MAX_PIXELS or --max-pixels)"
+        )
 
 
 class CheckpointError(ColonlightError):

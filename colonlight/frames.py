@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import re
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -20,7 +21,8 @@ import cv2
 import numpy as np
 
 from .atomic import write_bytes_atomic
-from .errors import InputError
+from .errors import FrameTooLargeError, InputError
+from .limits import max_pixels_setting
 from .video import DEFAULT_FPS, DecodedFrame, is_video
 
 IMAGE_SUFFIXES: frozenset[str] = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"})
@@ -79,6 +81,28 @@ def is_image_folder(folder: Path) -> bool:
     return not any(is_video(Path(e.path)) for e in entries if not _is_image_name(e.name))
 
 
+def check_image_size(path: Path, max_pixels: int | None = None) -> tuple[int, int] | None:
+    """``(width, height)`` from the header of the image at ``path``, read without decoding its pixels (OpenCV,
+    which decodes the frames, has no header-only reader; Pillow's ``open`` is lazy). None if Pillow cannot read
+    the header (the decoder then reports the file). FrameTooLargeError if it gives more than ``max_pixels`` pixels
+    (None: the configured cap); Pillow's own decompression-bomb refusal (> 179 Mpx) counts as too large."""
+    from PIL import Image
+
+    cap = max_pixels_setting() if max_pixels is None else int(max_pixels)
+    try:
+        with warnings.catch_warnings():  # Pillow warns past 89 Mpx; our cap decides
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as img:
+                width, height = int(img.width), int(img.height)
+    except Image.DecompressionBombError:
+        raise FrameTooLargeError(path, 0, 0, cap) from None
+    except Exception:  # noqa: BLE001 - unknown or broken header: the decoder reports it
+        return None
+    if width * height > cap:
+        raise FrameTooLargeError(path, width, height, cap)
+    return width, height
+
+
 def read_image(path: Path) -> np.ndarray:
     """Read an image as ``(H, W, 3)`` uint8 RGB: grey becomes 3 channels, alpha is dropped, 16-bit is scaled
     to 8-bit, and JPEG EXIF orientation is applied. InputError (naming the file) if it cannot be read."""
@@ -108,21 +132,26 @@ def read_image(path: Path) -> np.ndarray:
 
 
 def iter_image_folder(
-    folder: Path, fps: float | None = DEFAULT_FPS, *, min_frames: int = 0
+    folder: Path, fps: float | None = DEFAULT_FPS, *, min_frames: int = 0, max_pixels: int | None = None
 ) -> Iterator[DecodedFrame]:
     """Every image of ``folder`` as a frame, in natural order; ``time_s = index / fps``.
 
     The images are taken as frames already extracted at ``fps`` (None or 0 means the default 18). Raises
     InputError naming the file for an unreadable image, a size different from the first frame, or a file that
-    vanished; and, before yielding anything, if the folder has fewer than ``min_frames`` images.
+    vanished; and, before yielding anything, if the folder has fewer than ``min_frames`` images. Every image's
+    header is checked against ``max_pixels`` (None: the configured cap) before it is decoded (FrameTooLargeError).
     """
+    cap = max_pixels_setting() if max_pixels is None else int(max_pixels)
     paths = list_image_frames(Path(folder))
     if len(paths) < min_frames:
         raise InputError(f"{folder}: too short: {len(paths)} frame image(s), at least {min_frames} needed")
     rate = float(fps) if fps else DEFAULT_FPS
     size: tuple[int, ...] | None = None
     for i, p in enumerate(paths):
+        check_image_size(p, cap)
         img = read_image(p)
+        if img.shape[0] * img.shape[1] > cap:  # a header Pillow could not read: checked once decoded
+            raise FrameTooLargeError(p, img.shape[1], img.shape[0], cap)
         if size is None:
             size = img.shape
         elif img.shape != size:

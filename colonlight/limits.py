@@ -7,6 +7,9 @@ output frames one second of input can become.
 
 from __future__ import annotations
 
+import os
+from collections.abc import Mapping
+
 #: Largest frame accepted (width x height), checked from the stream header before any frame is decoded.
 #: 4096 x 4096 admits UHD and DCI 4K video (8.3 and 8.8 Mpx) with room to spare; an 8000 x 8000 "bomb" is refused.
 DEFAULT_MAX_PIXELS = 4096 * 4096
@@ -14,3 +17,20 @@ DEFAULT_MAX_PIXELS = 4096 * 4096
 MAX_FPS = 240.0
 #: Environment variable that overrides :data:`DEFAULT_MAX_PIXELS` in the CLI and the service alike.
 MAX_PIXELS_ENV = "COLONLIGHT_MAX_PIXELS"
+
+
+def max_pixels_setting(environ: Mapping[str, str] | None = None) -> int:
+    """The pixel cap in force: :data:`MAX_PIXELS_ENV` if set, else :data:`DEFAULT_MAX_PIXELS`.
+
+    ValueError (naming the variable) if the variable is set to anything but a positive integer.
+    """
+    raw = (os.environ if environ is None else environ).get(MAX_PIXELS_ENV, "").strip()
+    if not raw:
+        return DEFAULT_MAX_PIXELS
+    try:
+        value = int(raw)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise ValueError(f"{MAX_PIXELS_ENV} must be a positive whole number of pixels, got {raw!r}")
+    return value

@@ -10,6 +10,10 @@ Layout of a clip's output folder (a stable interface, see the README)::
 Decoding runs in a thread ahead of the method, and image encoding in a small thread pool behind it (OpenCV and
 PyAV release the GIL), with bounded queues so memory stays flat whatever the clip length. Frames are renamed into
 place strictly in index order, so an interrupted run leaves a gap-free prefix ``000000 .. k`` (never a hole).
+
+Memory is bounded by the frame size, never by the input (:func:`peak_rss_bound` states the bound): a source
+frame that the fps conversion repeats (a timestamp gap, a slow source, a high fps) is handed out one copy at a
+time, and the pixel cap (``ClipOptions.max_pixels``) is checked from the stream header before any frame is decoded.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -31,11 +35,12 @@ from . import __version__
 from .atomic import publish, remove_stale_temporaries, write_json_atomic, write_temporary
 from .errors import InputError
 from .frames import encode_image
+from .limits import MAX_FPS, max_pixels_setting
 from .methods.base import FrameResult, Method
 from .provenance import library_versions
 from .slam_layout import camera_setting, clip_camera, write_slam_layout
 from .sources import clip_frames
-from .video import DecodedFrame, VideoWriter
+from .video import DecodedFrame, DecodeReport, VideoWriter
 
 GAMMAS_FILE = "gammas.json"
 FRAMES_DIR = "frames"
@@ -45,6 +50,40 @@ _QUEUE_DEPTH = 4
 #: Encoder threads (JPEG/PNG encoding and fsync release the GIL): one more than a small machine's cores, so
 #: that a thread waiting on fsync does not leave a core idle (measured on 2 cores: 3 beat 2, 4 no better).
 _WRITERS = 3
+
+#: Resident memory of one process that runs clips before any frame: Python, torch, the model, the codecs
+#: (``colonlight enhance`` measured at 310-340 MiB on Linux x86-64 with the CPU build of torch).
+PROCESS_BASE_BYTES = 450 << 20
+#: What the libavcodec decoder may hold, in RGB-frame equivalents: an H.264 decoder keeps up to 16 reference
+#: frames plus one per frame thread (at most 17) in YUV 4:2:0, half the bytes of an RGB frame each.
+DECODER_FRAMES = 18
+#: What the H.264 writer (x264, preset medium) may hold, in RGB-frame equivalents: its 40-frame look-ahead plus
+#: B-frames and threads, each padded and with a half-size copy (measured: about 70 at 1280x720).
+ENCODER_FRAMES = 80
+
+
+def pipeline_frames(queue_depth: int = _QUEUE_DEPTH) -> int:
+    """Full-size RGB frames one clip holds at most between decoder and writers, whatever the input: one being
+    converted and ``queue_depth + 1`` decoded ahead; two held before writing starts and two in the method (its
+    input and its result); ``2 * queue_depth`` at the image writers, plus their encoded bytes (at most one frame
+    each, PNG level 1 of noise)."""
+    return 1 + (queue_depth + 1) + 2 + 2 + 2 * (2 * queue_depth)
+
+
+def peak_rss_bound(
+    width: int, height: int, *, workers: int = 1, video: bool = False, queue_depth: int = _QUEUE_DEPTH
+) -> int:
+    """Upper bound, in bytes, of the resident memory of a run on clips of ``width x height`` frames.
+
+    ``processes x PROCESS_BASE_BYTES + workers x 3wh x (pipeline_frames(queue_depth) + DECODER_FRAMES
+    [+ ENCODER_FRAMES with video])``; ``processes`` is 1 in-process (``workers == 1``), else the parent plus
+    ``workers`` pool processes. It does not depend on the clip's length, timestamps or fps: repeated frames stream
+    one at a time. Per output frame only its ``gammas.json`` record (about 0.2 KB) is kept until the clip ends.
+    The pixel cap bounds ``w x h`` itself, so with the default cap the bound holds whatever the input claims.
+    """
+    processes = 1 if workers <= 1 else workers + 1
+    frames = pipeline_frames(queue_depth) + DECODER_FRAMES + (ENCODER_FRAMES if video else 0)
+    return processes * PROCESS_BASE_BYTES + max(1, workers) * 3 * width * height * frames
 
 
 @dataclass(frozen=True)
@@ -58,14 +97,18 @@ class ClipOptions:
     quality: int = 95  # JPEG quality
     folder_fps: float = 18.0  # the rate assumed for a folder of frames
     camera: tuple[str, str] | None = None  # (file name, text) of a DSO/COLMAP camera file to copy (slam_layout)
+    #: Largest frame (width x height) decoded; larger clips fail from their header. Default: limits.max_pixels_setting()
+    max_pixels: int = field(default_factory=max_pixels_setting)
 
     def __post_init__(self) -> None:
         if self.format not in ("png", "jpg"):
             raise ValueError(f"format must be png or jpg, got {self.format!r}")
         if not 1 <= self.quality <= 100:
             raise ValueError(f"quality must be within 1..100, got {self.quality}")
-        if self.fps is not None and self.fps < 0:
-            raise ValueError(f"fps must be >= 0, got {self.fps}")
+        if self.fps is not None and not 0 <= self.fps <= MAX_FPS:
+            raise ValueError(f"fps must be within 0..{MAX_FPS:g}, got {self.fps:g}")
+        if self.max_pixels < 1:
+            raise ValueError(f"max_pixels must be >= 1, got {self.max_pixels}")
         if not (self.frames or self.video):
             raise ValueError("nothing to write: enable frames or video")
 
@@ -76,6 +119,8 @@ class ClipResult:
     out_dir: Path
     frames: int
     seconds: float
+    truncated: bool = False  # the source looks cut short: its frames that decode were used (see warnings)
+    warnings: tuple[str, ...] = ()  # one line each, without the path (also in gammas.json)
 
 
 def settings_record(method: Method, opts: ClipOptions) -> dict[str, Any]:
@@ -210,7 +255,7 @@ def enhance_clip(
     source: Path,
     out_dir: Path,
     method: Method,
-    opts: ClipOptions = ClipOptions(),
+    opts: ClipOptions | None = None,
     *,
     clip_name: str | None = None,
     on_frame: Callable[[int], None] | None = None,
@@ -221,6 +266,7 @@ def enhance_clip(
     this clip are then left without a ``gammas.json`` and a rerun redoes the clip.
     """
     t0 = time.perf_counter()
+    opts = ClipOptions() if opts is None else opts
     source, out_dir = Path(source), Path(out_dir)
     clip_name = clip_name or source.stem
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -229,7 +275,12 @@ def enhance_clip(
     fps_out = opts.fps or None
 
     stop = threading.Event()
-    decoded = _prefetch(clip_frames(source, fps=fps_out, folder_fps=opts.folder_fps, min_frames=MIN_FRAMES), stop)
+    report = DecodeReport()
+    frames = clip_frames(
+        source, fps=fps_out, folder_fps=opts.folder_fps, min_frames=MIN_FRAMES, max_pixels=opts.max_pixels,
+        report=report,
+    )
+    decoded = _prefetch(frames, stop)
     # Hold two frames before writing anything, so that a clip too short to enhance leaves nothing behind.
     head: list[DecodedFrame] = []
     for f in decoded:
@@ -301,10 +352,18 @@ def enhance_clip(
         "versions": library_versions(),
         "settings": settings,
         "frame_count": len(records),
-        "frames": records,
     }
+    warnings = tuple(report.warnings)
+    if report.truncated:  # only then: a sound clip's gammas.json keeps its bytes
+        gammas["truncated"] = True
+    if warnings:
+        gammas["warnings"] = list(warnings)
+    gammas["frames"] = records
     write_json_atomic(out_dir / GAMMAS_FILE, gammas)
-    return ClipResult(clip=clip_name, out_dir=out_dir, frames=len(records), seconds=time.perf_counter() - t0)
+    return ClipResult(
+        clip=clip_name, out_dir=out_dir, frames=len(records), seconds=time.perf_counter() - t0,
+        truncated=report.truncated is not None, warnings=warnings,
+    )
 
 
 def _source_rate(head: list[DecodedFrame]) -> float:
@@ -329,5 +388,6 @@ __all__ = [
     "complete_record",
     "enhance_clip",
     "iter_enhanced",
+    "peak_rss_bound",
     "settings_record",
 ]

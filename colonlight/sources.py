@@ -9,8 +9,9 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from .errors import InputError
-from .frames import is_image_folder, iter_image_folder
-from .video import DecodedFrame, iter_video_frames
+from .frames import check_image_size, is_image_folder, iter_image_folder, list_image_frames
+from .limits import max_pixels_setting
+from .video import DecodedFrame, DecodeReport, iter_video_frames, probe_frame_size
 
 
 def clip_kind(path: Path) -> str:
@@ -27,15 +28,40 @@ def clip_kind(path: Path) -> str:
     raise InputError(f"{path}: not a regular file or folder")
 
 
+def check_frame_size(path: Path, max_pixels: int | None = None) -> tuple[int, int] | None:
+    """Refuse a clip whose frames exceed the pixel cap, from headers only (nothing is decoded).
+
+    For a video file the stream header; for a folder of frames the header of its first image (each further image
+    is checked as it is read). ``max_pixels`` None means the configured cap
+    (:func:`colonlight.limits.max_pixels_setting`: ``COLONLIGHT_MAX_PIXELS`` or ``DEFAULT_MAX_PIXELS``).
+    Raises :class:`~colonlight.errors.FrameTooLargeError` (``.width``, ``.height``, ``.max_pixels``) if too large,
+    :class:`InputError` if the clip cannot be read at all. Returns the header's ``(width, height)`` (None for an
+    image header Pillow cannot read). The service calls this at upload time.
+    """
+    cap = max_pixels_setting() if max_pixels is None else int(max_pixels)
+    if clip_kind(path) == "video":
+        return probe_frame_size(Path(path), cap)
+    return check_image_size(list_image_frames(Path(path))[0], cap)
+
+
 def clip_frames(
-    path: Path, fps: float | None = 18.0, folder_fps: float = 18.0, min_frames: int = 0
+    path: Path,
+    fps: float | None = 18.0,
+    folder_fps: float = 18.0,
+    min_frames: int = 0,
+    max_pixels: int | None = None,
+    report: DecodeReport | None = None,
 ) -> Iterator[DecodedFrame]:
     """Frames of a clip in order: a video resampled to ``fps`` (``None``/0 keeps all), or every image of a folder.
 
     A folder of frames has no timestamps; its frames are taken as already extracted, at ``folder_fps``.
     ``min_frames`` counts *source* frames (a single still shown for a second would otherwise give 18 outputs)
-    and raises :class:`InputError` before anything is yielded when the clip has fewer.
+    and raises :class:`InputError` before anything is yielded when the clip has fewer. Frames of more than
+    ``max_pixels`` pixels (None: the configured cap) are refused from their header, before they are decoded.
+    A video's ``report`` learns what decoding found besides frames (a truncated file, damaged packets).
     """
     if clip_kind(path) == "video":
-        return iter_video_frames(Path(path), fps=fps or None, min_frames=min_frames)
-    return iter_image_folder(Path(path), fps=folder_fps, min_frames=min_frames)
+        return iter_video_frames(
+            Path(path), fps=fps or None, min_frames=min_frames, max_pixels=max_pixels, report=report
+        )
+    return iter_image_folder(Path(path), fps=folder_fps, min_frames=min_frames, max_pixels=max_pixels)

@@ -9,6 +9,10 @@ frame ``k``. :class:`FpsSelector` models ``libavfilter/vf_fps.c``; :func:`iter_v
 timestamps the ``ffmpeg`` tool would feed it (``fftools/ffmpeg_demux.c``, ``ffmpeg_opt.c``, ``ffmpeg_dec.c``).
 
 Container metadata (frame counts, durations) is never trusted: decoding alone decides how many frames exist.
+It only warns: a file shorter than its container's own size field is reported as truncated (:class:`DecodeReport`).
+
+Nothing the input claims can make memory grow: frames larger than the pixel cap are refused from the headers
+before decoding, and a frame that the fps conversion repeats is handed out one copy at a time (:class:`FpsRun`).
 """
 
 from __future__ import annotations
@@ -30,7 +34,8 @@ import numpy as np
 from av.video.reformatter import VideoReformatter
 
 from .atomic import atomic_path
-from .errors import InputError
+from .errors import FrameTooLargeError, InputError
+from .limits import max_pixels_setting
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +51,11 @@ _NOT_VIDEO_FORMATS = frozenset({"image2", "tty", "bin", "xbin", "idf", "adf", "a
 _AVFMT_NOTIMESTAMPS = 0x0080  # libavformat/avformat.h: the format has no timestamps (raw H.264, ...)
 _AVFMT_TS_DISCONT = 0x0200  # libavformat/avformat.h: timestamps may jump (MPEG-TS, MPEG-PS)
 _MICROSECONDS = Fraction(1, 1_000_000)  # AV_TIME_BASE_Q
+_US = 1_000_000  # AV_TIME_BASE
+_DTS_DELTA_THRESHOLD_US = 10 * _US  # fftools: dts_delta_threshold (10 s), for formats whose timestamps may jump
+_DTS_ERROR_THRESHOLD_US = 3600 * 30 * _US  # fftools: dts_error_threshold (30 h), for the others
+# libavformat's pts_wrap_bits of the demuxers that wrap (avpriv_set_pts_info); every other one uses 64: no wrap
+_PTS_WRAP_BITS = {"mpegts": 33, "mpeg": 33, "mpegvideo": 33, "flv": 32}
 
 
 @dataclass(frozen=True)
@@ -72,6 +82,35 @@ class DecodedFrame:
     source_index: int  # index of the decoded source frame it came from (repeats when FFmpeg duplicates)
     time_s: float  # output time: index / fps (the source time when every frame is kept)
     source_time_s: float  # the source frame's presentation time, relative to the stream's start time
+
+
+@dataclass
+class DecodeReport:
+    """What decoding a clip found besides its frames; filled in as it decodes, complete after the last frame.
+
+    Pass one to :func:`iter_video_frames` and read it once the iterator is exhausted. ``truncated`` is the reason
+    the file looks cut short, from its container's own sizes and counts (metadata warns, it never counts frames:
+    the frames are those that decode).
+    """
+
+    source_frames: int = 0  # decoded
+    packets: int = 0  # video packets read (empty AVI "dropped frame" chunks included)
+    damaged: int = 0  # packets flagged corrupt and frames decoded with errors concealed
+    discontinuities: int = 0  # timestamp jumps corrected as ffmpeg corrects them (joined MPEG-TS, restarts)
+    truncated: str | None = None
+
+    @property
+    def warnings(self) -> list[str]:
+        """One line each for what a user should know about the clip (empty for a sound clip)."""
+        out = []
+        if self.truncated:
+            out.append(f"truncated: {self.truncated}; the {self.source_frames} frames that decode were used")
+        if self.damaged:
+            out.append(f"{self.damaged} damaged packets/frames were decoded with errors concealed")
+        if self.discontinuities:
+            out.append(f"{self.discontinuities} timestamp discontinuities (joined or restarted recording) were "
+                       "bridged as ffmpeg bridges them")
+        return out
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -105,11 +144,28 @@ class FpsDecision:
     pts: int
 
 
+@dataclass(frozen=True)
+class FpsRun:
+    """Source frame ``source_index`` is output ``count`` times in a row: output frames ``index`` ..
+    ``index + count - 1`` at output pts ``pts`` .. ``pts + count - 1``. A run is a few integers however long
+    the repeat (a 60 s timestamp gap at 18 fps is one run of 1080), so a caller can stream the copies."""
+
+    index: int
+    source_index: int
+    pts: int
+    count: int
+
+    def decisions(self) -> Iterator[FpsDecision]:
+        for k in range(self.count):
+            yield FpsDecision(self.index + k, self.source_index, self.pts + k)
+
+
 class FpsSelector:
     """Which source frames FFmpeg's ``fps`` filter outputs, decided from presentation timestamps alone.
 
     Push every decoded frame's pts (``time_base`` units) in decoding order, then :meth:`close` with the
-    end-of-stream pts; both return the decisions made so far. Like the filter it holds at most two frames,
+    end-of-stream pts; both return the decisions made so far (:meth:`push_runs` and :meth:`close_runs` return
+    them as runs of repeats instead, in constant memory). Like the filter it holds at most two frames,
     so a caller keeps only the frames listed in :attr:`pending`. The rules, from ``vf_fps.c``:
 
     * each input pts is rescaled to the output time base 1/fps, to nearest, halves away from zero
@@ -139,35 +195,141 @@ class FpsSelector:
 
     def push(self, pts: int) -> list[FpsDecision]:
         """Add the next decoded frame; return the output decisions it allows."""
+        return [d for run in self.push_runs(pts) for d in run.decisions()]
+
+    def close(self, eof_pts: int) -> list[FpsDecision]:
+        """End of stream at ``eof_pts`` (``time_base`` units); return the remaining decisions."""
+        return [d for run in self.close_runs(eof_pts) for d in run.decisions()]
+
+    def push_runs(self, pts: int) -> list[FpsRun]:
+        """:meth:`push`, with the decisions as runs (at most one)."""
         if self._closed:
             raise RuntimeError("FpsSelector.push after close")
         self._buf.append((self._pushed, rescale_near(pts, self.time_base, self._out_tb)))
         self._pushed += 1
-        out: list[FpsDecision] = []
+        out: list[FpsRun] = []
         while len(self._buf) == 2:
             self._step(None, out)
         return out
 
-    def close(self, eof_pts: int) -> list[FpsDecision]:
-        """End of stream at ``eof_pts`` (``time_base`` units); return the remaining decisions."""
+    def close_runs(self, eof_pts: int) -> list[FpsRun]:
+        """:meth:`close`, with the decisions as runs (at most two)."""
         self._closed = True
         eof = rescale_near(eof_pts, self.time_base, self._out_tb)
-        out: list[FpsDecision] = []
+        out: list[FpsRun] = []
         while self._buf:
             self._step(eof, out)
         return out
 
-    def _step(self, eof: int | None, out: list[FpsDecision]) -> None:
+    def _step(self, eof: int | None, out: list[FpsRun]) -> None:
+        """Output the oldest frame until the next one (or EOF) is due, then drop it (one ``write_frame`` loop)."""
         if self._next_pts is None:
             self._next_pts = self._buf[0][1]
-        if (len(self._buf) == 2 and self._buf[1][1] <= self._next_pts) or (
-            eof is not None and eof <= self._next_pts
-        ):
-            self._buf.popleft()
-            return
-        out.append(FpsDecision(self._emitted, self._buf[0][0], self._next_pts))
-        self._emitted += 1
-        self._next_pts += 1
+        limits = ([self._buf[1][1]] if len(self._buf) == 2 else []) + ([eof] if eof is not None else [])
+        count = max(0, min(limits) - self._next_pts)
+        if count:
+            out.append(FpsRun(self._emitted, self._buf[0][0], self._next_pts, count))
+            self._emitted += count
+            self._next_pts += count
+        self._buf.popleft()
+
+
+class _FfmpegPacketTimestamps:
+    """The ``ffmpeg`` tool's corrections of packet timestamps before decoding (``fftools/ffmpeg_demux.c``,
+    ``ts_fixup``), applied to the packets of the one video stream in use, in demuxing order:
+
+    * wrap correction at the start (``pts_wrap_bits`` < 64: MPEG-TS/PS, FLV): a first timestamp more than half
+      the wrap range past the start is taken as not yet wrapped (libavformat unwraps the rest itself);
+    * the shift by ``ts_offset = -start`` (see :class:`_FfmpegTimestamps`);
+    * discontinuities (``ts_discontinuity_detect``): for formats whose timestamps may jump (MPEG-TS/PS), a dts
+      more than 10 s away from the predicted next dts, or 0.1 s before the previous one (two recordings joined
+      end to end, a restarted encoder), adds an offset that makes the stream continue where it was, for this
+      and every later packet; for other formats a timestamp more than 30 h from the prediction is dropped;
+    * the predicted next dts (``ist_dts_update``): this dts plus the packet's duration, else one frame at the
+      codec's rate.
+
+    Only the video stream is read, as ``ffmpeg -i clip -vf fps=18 ...`` reads only the streams it maps.
+    """
+
+    def __init__(self, container: Any, stream: Any, start_us: int | None, offset: int) -> None:
+        self.tb = Fraction(stream.time_base)
+        self.discont = bool(container.format.flags & _AVFMT_TS_DISCONT)
+        self.wrap_bits = _PTS_WRAP_BITS.get(container.format.name.split(",")[0], 64)
+        self.start_us = start_us
+        self.offset = offset  # ts_offset in stream time base
+        self.wrap_done = False
+        self.discont_offset_us = 0  # ts_offset_discont
+        self.saw_first = False
+        self.next_dts_us: int | None = None
+        self.dts_us = 0
+        rate = stream.codec_context.framerate
+        self.codec_rate = Fraction(rate) if rate else None
+        avg = stream.average_rate
+        delay = int(bool(stream.codec_context.has_b_frames))  # video_delay (PyAV tells only whether it is 0)
+        self.first_dts_us = int(-delay * _US / float(avg)) if avg else 0
+        #: number of timestamp discontinuities corrected (a join, a restart, a jump): worth a warning
+        self.discontinuities = 0
+
+    def _to_us(self, ts: int) -> int:
+        return rescale_near(ts, self.tb, _MICROSECONDS)
+
+    def _from_us(self, us: int) -> int:
+        return rescale_near(us, _MICROSECONDS, self.tb)
+
+    def fix(self, packet: Any) -> None:
+        """Correct ``packet.pts``/``packet.dts`` in place, as ``ts_fixup`` does before the packet is decoded."""
+        pts, dts = packet.pts, packet.dts
+        if not self.wrap_done and self.start_us is not None and self.wrap_bits < 64:
+            stime = self._from_us(self.start_us)
+            half, full = 1 << (self.wrap_bits - 1), 1 << self.wrap_bits
+            self.wrap_done = True
+            if dts is not None and dts > stime + half:
+                dts -= full
+                self.wrap_done = False
+            if pts is not None and pts > stime + half:
+                pts -= full
+                self.wrap_done = False
+        if dts is not None:
+            dts += self.offset
+        if pts is not None:
+            pts += self.offset
+        shift = self._from_us(self.discont_offset_us)  # ts_discontinuity_process
+        if dts is not None:
+            dts += shift
+        if pts is not None:
+            pts += shift
+        if dts is not None and self.next_dts_us is not None:  # ts_discontinuity_detect (one stream in use)
+            pkt_dts_us = self._to_us(dts)
+            delta = pkt_dts_us - self.next_dts_us
+            if self.discont:
+                if abs(delta) > _DTS_DELTA_THRESHOLD_US or pkt_dts_us + _US // 10 < self.dts_us:
+                    self.discont_offset_us -= delta
+                    self.discontinuities += 1
+                    dts -= self._from_us(delta)
+                    if pts is not None:
+                        pts -= self._from_us(delta)
+            else:
+                if abs(delta) > _DTS_ERROR_THRESHOLD_US:
+                    dts = None
+                if pts is not None and abs(self._to_us(pts) - self.next_dts_us) > _DTS_ERROR_THRESHOLD_US:
+                    pts = None
+        self._update_next_dts(packet, pts, dts)
+        packet.pts, packet.dts = pts, dts
+
+    def _update_next_dts(self, packet: Any, pts: int | None, dts: int | None) -> None:
+        """``ist_dts_update`` for a video stream (no ``-r`` input option)."""
+        if not self.saw_first:
+            self.dts_us = self.first_dts_us + (self._to_us(pts) if pts is not None else 0)
+            self.saw_first = True
+        if self.next_dts_us is None:
+            self.next_dts_us = self.dts_us
+        if dts is not None:
+            self.next_dts_us = self.dts_us = self._to_us(dts)
+        self.dts_us = self.next_dts_us
+        if packet.duration:
+            self.next_dts_us += self._to_us(packet.duration)
+        elif self.codec_rate:
+            self.next_dts_us += rescale_near(1, 1 / self.codec_rate, _MICROSECONDS)
 
 
 class _FfmpegTimestamps:
@@ -178,6 +340,7 @@ class _FfmpegTimestamps:
       except for formats whose timestamps may jump (MPEG-TS/PS), where ``correct_input_start_times``
       (``ffmpeg_opt.c``) takes the earliest stream in use: the video alone, as in
       ``ffmpeg -i clip -vf fps=18 frames/%06d.png``.
+    * discontinuities and wraps are corrected on the packets, before decoding (:class:`_FfmpegPacketTimestamps`);
     * ``ffmpeg_dec.c`` (``video_frame_process``) takes ``best_effort_timestamp`` (pts, else dts here) and
       fills a missing one with the previous pts plus the previous frame's estimated duration; formats without
       timestamps (raw H.264) are timed that way throughout. EOF is signalled at last pts + that estimate
@@ -191,6 +354,8 @@ class _FfmpegTimestamps:
         if start is not None and flags & _AVFMT_TS_DISCONT and stream.start_time is not None:
             start = rescale_near(stream.start_time, self.tb, _MICROSECONDS)
         self.offset = -rescale_near(start, _MICROSECONDS, self.tb) if start is not None else 0
+        #: the corrections made to packets before decoding: frames then carry shifted, continuous pts
+        self.packets = _FfmpegPacketTimestamps(container, stream, start, self.offset)
         self.unreliable = bool(flags & _AVFMT_NOTIMESTAMPS)
         rate = stream.codec_context.framerate
         self.codec_rate = Fraction(rate) if rate else None
@@ -204,8 +369,6 @@ class _FfmpegTimestamps:
         pts = None if self.unreliable else (frame.pts if frame.pts is not None else frame.dts)
         if pts is None:
             pts = 0 if self.last_pts is None else self.last_pts + self.last_est
-        else:
-            pts += self.offset
         self.last_est = self._duration(frame, pts)
         self.last_pts = pts
         return pts
@@ -341,6 +504,13 @@ def _check_file(path: Path) -> None:
         raise _error(path, "empty file (0 bytes)")
 
 
+def _file_size(path: Path) -> int | None:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return None
+
+
 def _looks_like_mp4(path: Path) -> bool:
     """An ISO media file starts with an ``ftyp`` box; one that FFmpeg cannot open has lost its index."""
     try:
@@ -350,14 +520,17 @@ def _looks_like_mp4(path: Path) -> bool:
         return False
 
 
-def _open(path: Path) -> tuple[Any, Any]:
-    """Open ``path`` and pick its main video stream; InputError if it is not a video."""
-    _check_file(path)
+def _open_container(path: Path, options: dict[str, str]) -> tuple[Any, Any]:
+    """``av.open`` with ``options`` for its stream probe, and the main video stream; InputError if no video."""
     try:
-        container = av.open(str(path), mode="r", metadata_errors="replace")
+        container = av.open(str(path), mode="r", metadata_errors="replace", options=options)
     except (av.error.FFmpegError, OSError, UnicodeError, ValueError) as exc:
         if isinstance(exc, av.error.InvalidDataError) and _looks_like_mp4(path):
             raise _error(path, "truncated or unfinished MP4/MOV: its index ('moov') is missing") from exc
+        end, size = _declared_end(path), _file_size(path)
+        if isinstance(exc, av.error.InvalidDataError) and end is not None and size is not None and end > size:
+            raise _error(path, f"truncated video: the file ends at byte {size} but its container says it ends "
+                               f"at byte {end}, before any frame could be read") from exc
         raise _error(path, _cause(exc, opening=True)) from exc
     try:
         fmt = container.format.name
@@ -371,6 +544,43 @@ def _open(path: Path) -> tuple[Any, Any]:
         stream = best if best in candidates else candidates[0]
         if stream.codec_context is None:
             raise _error(path, "no decoder for its video codec")
+    except BaseException:
+        container.close()
+        raise
+    return container, stream
+
+
+def _check_size(path: Path, stream: Any, cap: int) -> tuple[int, int]:
+    width, height = int(stream.codec_context.width or 0), int(stream.codec_context.height or 0)
+    if width * height > cap:
+        raise FrameTooLargeError(path, width, height, cap)
+    return width, height
+
+
+def _header_size(path: Path, cap: int) -> tuple[int, int]:
+    """The main video stream's size from the container and codec headers, decoding nothing: the stream probe
+    (``avformat_find_stream_info``, which otherwise decodes a few frames) runs with ``skip_frame=all``.
+    FrameTooLargeError past ``cap``; (0, 0) if the headers do not say."""
+    container, stream = _open_container(path, {"skip_frame": "all"})
+    with container:
+        return _check_size(path, stream, cap)
+
+
+def _open(path: Path, max_pixels: int | None = None) -> tuple[Any, Any]:
+    """Open ``path`` for decoding and pick its main video stream; InputError if it is not a video.
+
+    FrameTooLargeError if the headers give more than ``max_pixels`` (None: the configured cap) pixels, raised
+    before any frame is decoded (:func:`_header_size`). libavcodec's own ``max_pixels`` is then set to the cap,
+    for the stream probe and for the decoder, so that not even a frame whose header lied (or said nothing) about
+    its size can be decoded past the cap.
+    """
+    _check_file(path)
+    cap = max_pixels_setting() if max_pixels is None else int(max_pixels)
+    _header_size(path, cap)
+    container, stream = _open_container(path, {"max_pixels": str(cap)})
+    try:
+        _check_size(path, stream, cap)
+        stream.codec_context.options = {"max_pixels": str(cap)}
         stream.codec_context.thread_type = "AUTO"  # frame + slice threads: ~1.5x faster on HD
     except BaseException:
         container.close()
@@ -397,26 +607,82 @@ def _check_index(path: Path, stream: Any) -> None:
         )
 
 
-def _frames(path: Path, container: Any, stream: Any) -> Iterator[Any]:
+def _frames(
+    path: Path, container: Any, stream: Any, fix: Callable[[Any], None] | None, report: DecodeReport
+) -> Iterator[Any]:
     """Decoded frames of ``stream``; a demux or decode failure becomes InputError naming the frame reached.
 
     Packets the demuxer flags as corrupt and frames decoded with concealed errors are kept, as ``ffmpeg``
-    keeps them (so that frame choice still matches it), and counted in one warning per clip.
+    keeps them (so that frame choice still matches it), and counted in ``report`` (one warning per clip).
     """
-    count = damaged = 0
     try:
         for packet in container.demux(stream):
-            damaged += bool(packet.is_corrupt)
+            report.damaged += bool(packet.is_corrupt)
+            if packet.size or packet.dts is not None:  # not the empty packet that flushes the decoder
+                report.packets += 1
+                if fix is not None:
+                    fix(packet)
             for frame in packet.decode():
-                count += 1
-                damaged += bool(frame.is_corrupt)
+                report.source_frames += 1
+                report.damaged += bool(frame.is_corrupt)
                 yield frame
     except (av.error.FFmpegError, OSError, ValueError) as exc:
-        cause = f"corrupt or truncated video: reading failed after {count} frames ({_cause(exc)})"
+        cause = f"corrupt or truncated video: reading failed after {report.source_frames} frames ({_cause(exc)})"
         raise _error(path, cause) from exc
-    finally:
-        if damaged:
-            log.warning("%s: %d damaged packets/frames were decoded with errors concealed", path, damaged)
+
+
+_TS_PACKET_SIZES = (188, 192, 204)  # MPEG-TS, M2TS (timecode prefix), TS with FEC bytes
+
+
+def _vint(data: bytes, pos: int) -> tuple[int, int, bool] | None:
+    """An EBML variable-size integer at ``pos``: (value, next position, all ones = "unknown size")."""
+    if pos >= len(data) or data[pos] == 0:
+        return None
+    length = 8 - data[pos].bit_length() + 1
+    if pos + length > len(data):
+        return None
+    value = data[pos] & (0xFF >> length)
+    for byte in data[pos + 1 : pos + length]:
+        value = value << 8 | byte
+    return value, pos + length, value == (1 << (7 * length)) - 1
+
+
+def _declared_end(path: Path) -> int | None:
+    """Where the file should end by its container's own top-level size field (RIFF for AVI, the Segment of
+    Matroska/WebM), or None where there is none (unknown size, as a live recording writes, or another format)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return None
+    if head[:4] == b"RIFF" and len(head) >= 8:
+        return 8 + int.from_bytes(head[4:8], "little")
+    if head[:4] == b"\x1a\x45\xdf\xa3":  # EBML header, then the Segment element (ID 18 53 80 67)
+        header = _vint(head, 4)
+        if header is None:
+            return None
+        pos = header[1] + header[0]
+        if head[pos : pos + 4] != b"\x18\x53\x80\x67":
+            return None
+        seg = _vint(head, pos + 4)
+        return None if seg is None or seg[2] else seg[1] + seg[0]
+    return None
+
+
+def _truncation(path: Path, container: Any, stream: Any, report: DecodeReport) -> str | None:
+    """Why the clip looks cut short, from container metadata (used to warn, never to count); None if it does not."""
+    size = _file_size(path)
+    if size is None:
+        return None
+    fmt = container.format.name
+    end = _declared_end(path)
+    if end is not None and end > size:
+        return f"the file ends at byte {size} but its container says it ends at byte {end}"
+    if fmt == "mpegts" and all(size % n for n in _TS_PACKET_SIZES):
+        return f"the file ends inside a transport-stream packet ({size} bytes is no whole number of packets)"
+    # Not used: header frame counts (an AVI with audio declares one frame more than it holds) and durations
+    # (the audio may outlast the video): either would flag sound files.
+    return None
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -424,12 +690,26 @@ def _frames(path: Path, container: Any, stream: Any) -> Iterator[Any]:
 # ------------------------------------------------------------------------------------------------------------
 
 
-def probe_video(path: Path) -> VideoInfo:
-    """Describe the clip at ``path``, decoding its first frame; InputError if it is no decodable video."""
+def probe_frame_size(path: Path, max_pixels: int | None = None) -> tuple[int, int]:
+    """``(width, height)`` of the clip's video stream as its header gives it (coded size, before rotation),
+    without decoding a frame: the cheap check to make before accepting a clip.
+
+    Raises :class:`~colonlight.errors.FrameTooLargeError` if ``width x height`` exceeds ``max_pixels`` (None: the
+    configured cap, :func:`colonlight.limits.max_pixels_setting`), :class:`InputError` if it is no video.
+    """
     path = Path(path)
-    container, stream = _open(path)
+    _check_file(path)
+    return _header_size(path, max_pixels_setting() if max_pixels is None else int(max_pixels))
+
+
+def probe_video(path: Path, max_pixels: int | None = None) -> VideoInfo:
+    """Describe the clip at ``path``, decoding its first frame; InputError if it is no decodable video.
+
+    FrameTooLargeError, before decoding, if its frames exceed ``max_pixels`` (None: the configured cap)."""
+    path = Path(path)
+    container, stream = _open(path, max_pixels)
     with container:
-        first = next(iter(_frames(path, container, stream)), None)
+        first = next(iter(_frames(path, container, stream, None, DecodeReport())), None)
         if first is None:
             raise _error(path, "no decodable video frames (truncated or corrupt?)")
         rotation, _ = _orientation(_display_matrix(first), _rotation_tag(stream))
@@ -459,12 +739,19 @@ def is_video(path: Path) -> bool:
     try:
         probe_video(Path(path))
         return True
+    except FrameTooLargeError:  # a video, too large to decode: reported when it runs, not ignored
+        return True
     except Exception:  # noqa: BLE001 - a yes/no sniff: any failure means "not a video we can use"
         return False
 
 
 def iter_video_frames(
-    path: Path, fps: float | Fraction | None = DEFAULT_FPS, *, min_frames: int = 0
+    path: Path,
+    fps: float | Fraction | None = DEFAULT_FPS,
+    *,
+    min_frames: int = 0,
+    max_pixels: int | None = None,
+    report: DecodeReport | None = None,
 ) -> Iterator[DecodedFrame]:
     """Decode ``path`` into upright RGB frames at ``fps``, exactly the frames FFmpeg's ``fps`` filter picks.
 
@@ -472,18 +759,27 @@ def iter_video_frames(
     fewer decoded source frames is an InputError, raised before any frame is yielded. A clip that fails
     part-way (corrupt data) yields what decoded, then raises InputError naming the file and the frame reached;
     an mp4/mov cut short (index past the end of file) is refused before the first frame. Memory is constant
-    in clip length: at most two source frames (plus ``min_frames``) are held.
+    in clip length and in repeats: at most two source frames (plus ``min_frames``) are held, and a frame that
+    the fps conversion repeats is copied as each repeat is taken. Frames of more than ``max_pixels`` pixels
+    (None: the configured cap) are refused from the stream header (FrameTooLargeError) before any is decoded.
+    ``report`` (a :class:`DecodeReport`) learns what else decoding found: a file cut short (``truncated``),
+    damaged packets, timestamp discontinuities; without one, these are logged as warnings.
     """
     path = Path(path)
-    container, stream = _open(path)
+    warn = report is None
+    report = DecodeReport() if report is None else report
+    container, stream = _open(path, max_pixels)
     with container:
         _check_index(path, stream)
         selector = FpsSelector(fps, stream.time_base) if fps else None
-        yield from _decode(path, container, stream, selector, min_frames)
+        yield from _decode(path, container, stream, selector, min_frames, report)
+        report.truncated = _truncation(path, container, stream, report)
+        for line in report.warnings if warn else ():
+            log.warning("%s: %s", path, line)
 
 
 def _decode(
-    path: Path, container: Any, stream: Any, selector: FpsSelector | None, min_frames: int
+    path: Path, container: Any, stream: Any, selector: FpsSelector | None, min_frames: int, report: DecodeReport
 ) -> Iterator[DecodedFrame]:
     ts = _FfmpegTimestamps(container, stream)
     tag = _rotation_tag(stream)
@@ -492,7 +788,6 @@ def _decode(
     size: tuple[int, ...] | None = None
     start: int | None = None
     decoded = 0
-    last_source = -1
     transform: Transform | None = None
     # One swscale context (and pool of scaler threads) for the whole clip: ``frame.to_ndarray(format="rgb24")``
     # makes a new context, and starts new scaler threads, for every frame (1350x1080: 1.2 ms of CPU and 3-4 ms of
@@ -521,17 +816,22 @@ def _decode(
             )
         return rgb
 
-    def emit(decisions: list[FpsDecision], rate: float) -> None:
-        nonlocal last_source
-        for d in decisions:
-            frame, t_src = held[d.source_index]
-            image = convert(frame, d.source_index)
-            if d.source_index == last_source:
-                image = image.copy()  # a duplicate gets its own buffer: callers may change frames in place
-            last_source = d.source_index
-            ready.append(DecodedFrame(image, d.index, d.source_index, d.index / rate, t_src))
+    def expand(runs: deque[FpsRun], rate: float) -> Iterator[DecodedFrame]:
+        """The output frames of ``runs``, one at a time: a source frame repeated n times is converted once and
+        handed out as n separate buffers made as they are asked for, so repeats never pile up in memory."""
+        while runs:
+            run = runs.popleft()
+            frame, t_src = held[run.source_index]
+            image = convert(frame, run.source_index)
+            for k in range(run.count):
+                index = run.index + k
+                # every repeat but the last gets its own copy of the pristine image: callers may change frames
+                # in place, and the copies are made one by one as the consumer takes them
+                out = image if k == run.count - 1 else image.copy()
+                yield DecodedFrame(out, index, run.source_index, index / rate, t_src)
 
-    for frame in _frames(path, container, stream):
+    runs: deque[FpsRun] = deque()  # decided, not yet handed out (only while fewer than min_frames decoded)
+    for frame in _frames(path, container, stream, ts.packets.fix, report):
         pts = ts.frame_pts(frame)
         if start is None:  # source times count from the stream start, in the same shifted pts domain
             start = pts if stream.start_time is None or ts.unreliable else stream.start_time + ts.offset
@@ -540,20 +840,25 @@ def _decode(
         decoded += 1
         if selector is None:
             ready.append(DecodedFrame(convert(frame, index), index, index, t_src, t_src))
-        else:
-            held[index] = (frame, t_src)
-            emit(selector.push(pts), float(selector.fps))
-            for k in [k for k in held if k not in selector.pending]:
-                del held[k]
+            if decoded >= min_frames:
+                while ready:
+                    yield ready.popleft()
+            continue
+        held[index] = (frame, t_src)
+        runs.extend(selector.push_runs(pts))
         if decoded >= min_frames:
-            while ready:
-                yield ready.popleft()
+            yield from expand(runs, float(selector.fps))
+            keep = set(selector.pending)
+            for k in [k for k in held if k not in keep]:
+                del held[k]
     if decoded == 0:
         raise _error(path, "no decodable video frames (truncated or corrupt?)")
     if decoded < min_frames:
         raise _error(path, f"too short: {decoded} frame(s) decoded, at least {min_frames} needed")
+    report.discontinuities = ts.packets.discontinuities
     if selector is not None:
-        emit(selector.close(ts.eof_pts()), float(selector.fps))
+        runs.extend(selector.close_runs(ts.eof_pts()))
+        yield from expand(runs, float(selector.fps))
     while ready:
         yield ready.popleft()
 
@@ -563,12 +868,18 @@ def _decode(
 # ------------------------------------------------------------------------------------------------------------
 
 
+#: x264 threads (and so slices per frame) of :class:`VideoWriter`: fixed, so that ``enhanced.mp4`` is byte-identical
+#: on any machine; 4 keeps a 1080p encode ahead of the enhancement on small machines.
+ENCODER_THREADS = 4
+
+
 class VideoWriter:
     """Write RGB uint8 frames to an H.264 (yuv420p, faststart) mp4 that browsers play.
 
     The file appears at ``path`` only when :meth:`close` succeeds (atomic rename); on error nothing is left.
     Odd widths/heights are padded by one pixel (yuv420p needs even sizes). Colours are converted as BT.601
     limited range and tagged so, so that players do not shift them. A writer that got no frame writes nothing.
+    The same frames give the same bytes on any machine (fixed encoder threads, no muxer version or time).
 
     Example::
 
@@ -594,7 +905,8 @@ class VideoWriter:
         self._ctx = atomic_path(self.path)
         self._tmp = self._ctx.__enter__()
         try:
-            opts = {"movflags": "+faststart"}
+            # bitexact: no muxer version string, so that the bytes depend on the frames and settings alone
+            opts = {"movflags": "+faststart", "fflags": "+bitexact"}
             self._container = av.open(str(self._tmp), mode="w", format="mp4", options=opts)
             self._stream = self._container.add_stream("libx264", rate=self.rate)
             self._stream.width = width + (width % 2)
@@ -604,6 +916,11 @@ class VideoWriter:
             cc.colorspace = cc.color_primaries = cc.color_trc = 6  # smpte170m: BT.601, as swscale converts
             cc.color_range = 1  # limited ("tv")
             self._stream.options = {"crf": str(self.crf), "preset": self.preset}
+            # x264 cuts each frame into one slice per thread, and by default takes as many threads as the
+            # process may use cores (sched_getaffinity): the bytes then depend on the machine and its load
+            # limits. A fixed count makes them the same everywhere.
+            cc.thread_type = "SLICE"
+            cc.thread_count = ENCODER_THREADS
         except BaseException as exc:
             self._discard(exc)
             raise

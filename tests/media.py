@@ -101,16 +101,18 @@ def make_clip(
     input_args: Sequence[str] = (),
     output_args: Sequence[str] = (),
     audio: bool = False,
+    first_index: int = 0,
 ) -> Path:
     """Encode a constant-rate clip of index frames with the ffmpeg binary; the container follows the suffix.
 
     ``fps`` may be a string such as ``"30000/1001"``. ``input_args`` go before the frames' ``-i`` (e.g.
-    ``["-itsoffset", "0.02"]`` to start the video later than the audio); ``audio`` adds a sine track.
+    ``["-itsoffset", "0.02"]`` to start the video later than the audio); ``audio`` adds a sine track. Frames show
+    ``first_index``, ``first_index + 1``, ... (so that clips joined end to end stay distinguishable).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     w, h = size
-    raw = b"".join(index_frame(i, w, h).tobytes() for i in range(n_frames))
+    raw = b"".join(index_frame(first_index + i, w, h).tobytes() for i in range(n_frames))
     args = [*input_args, "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-framerate", str(fps)]
     args += ["-i", "-"]
     if audio:
@@ -121,6 +123,14 @@ def make_clip(
         args += ["-c:a", "aac"]
     _run([*args, *codec_args, *output_args, "-y", str(path)], stdin=raw)
     return path
+
+
+def make_solid_clip(path: Path, size: tuple[int, int], n_frames: int = 2, fps: int = 6) -> Path:
+    """A grey H.264 clip from FFmpeg's ``color`` source: cheap at any size (e.g. a tiny file of huge frames)."""
+    w, h = size
+    _run(["-f", "lavfi", "-i", f"color=gray:s={w}x{h}:r={fps}", "-frames:v", str(n_frames),
+          "-c:v", "libx264", "-preset", "ultrafast", "-y", str(path)])
+    return Path(path)
 
 
 def make_vfr_clip(
@@ -171,6 +181,12 @@ def with_rotation(src: Path, dst: Path, degrees: float, hflip: bool = False) -> 
     """``src`` with a display matrix turning it ``degrees`` counter-clockwise for display (as a phone
     marks a portrait recording), optionally mirrored."""
     return remux(src, dst, ["-display_rotation", str(degrees), *(["-display_hflip"] if hflip else [])])
+
+
+def joined(parts: Sequence[Path], dst: Path) -> Path:
+    """The bytes of ``parts`` end to end (``cat a.ts b.ts > dst``), as recorders and careless copies join files."""
+    Path(dst).write_bytes(b"".join(Path(p).read_bytes() for p in parts))
+    return Path(dst)
 
 
 def truncated_copy(src: Path, dst: Path, keep: float) -> Path:
