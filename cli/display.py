@@ -134,7 +134,7 @@ class BatchDisplay:
         else:
             self._print(f"[green]done[/]    {printable(o.name)}: {o.frames} frames in {o.seconds:.1f} s")
         for line in o.warnings:
-            self._print(f"[yellow]warning[/] {o.source}: {line}")
+            self._print(f"[yellow]warning[/] {printable(str(o.source))}: {printable(line)}")
 
     def _print(self, text: str) -> None:
         if self.progress:
