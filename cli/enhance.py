@@ -27,6 +27,7 @@ def enhance(
     model_size: Optional[str] = options.ModelSize,
     gamma: Optional[float] = typer.Option(None, "--gamma", help="Exponent for --method gamma (out = in ** gamma)."),
     device: str = options.Device,
+    content: str = options.Content,
     frames: bool = typer.Option(True, "--frames/--no-frames", help="Write enhanced frame images."),
     video: bool = typer.Option(False, "--video/--no-video", help="Also write enhanced.mp4 (H.264, yuv420p, faststart)."),
     fmt: str = typer.Option("png", "--format", "-f", envvar="COLONLIGHT_FORMAT", help="Frame image format: png | jpg."),
@@ -46,7 +47,8 @@ def enhance(
     if fps < 0:
         raise typer.BadParameter("must be >= 0", param_hint="--fps")
     try:
-        clip_opts = ClipOptions(fps=fps or None, frames=frames, video=video, format=fmt, quality=quality)
+        clip_opts = ClipOptions(fps=fps or None, frames=frames, video=video, format=fmt, quality=quality,
+                                content=content)
     except ValueError as exc:
         raise typer.BadParameter(str(exc)) from exc
     spec = MethodSpec.of(method, **options.method_options(method, weights, model_size, device, gamma))

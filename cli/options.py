@@ -18,6 +18,12 @@ ModelSize = typer.Option(
     help="Network input size in pixels, 'full' for full-resolution input (the release's way), or 'auto' (the "
          "default): the size the weights were trained at (their card; 48 for the shipped model), else 48.",
 )
+Content = typer.Option(
+    "auto", "--content", envvar="COLONLIGHT_CONTENT",
+    help="auto: find the field of view inside a black border and fixed on-screen text, let the method see only "
+         "them and write border and text pixels unchanged (a frame without either is processed as with full); "
+         "full: the whole frame.",
+)
 Debug = typer.Option(False, "--debug", envvar="COLONLIGHT_DEBUG", help="Show tracebacks of errors.")
 Quiet = typer.Option(False, "--quiet", "-q", envvar="COLONLIGHT_QUIET", help="No live display: one line per clip, for logs.")
 
