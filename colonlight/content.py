@@ -11,7 +11,7 @@ the block:
 
 - field of view: the convex hull of the largest region that was lit (brighter than ``DARK_LEVEL``) in the block.
   It counts as a border only if it is a real one: at least ``MIN_BORDER_FRACTION`` of the frame, nearly all
-  dark and flat outside, with a sharp step at its edge (a dark lumen or vignetted corner fades; a border does
+  flat and mostly dark outside (the rest is text), with a sharp step at its edge (a dark lumen or vignetted corner fades; a border does
   not). A frame without a border is therefore left exactly alone.
 - overlays: pixels inside the field of view that stayed constant (range <= ``STATIC_RANGE``) while the scene
   changed (median range >= ``MOVING_RANGE``), in groups with text-like contrast; a block whose scene did not
@@ -46,8 +46,9 @@ DARK_LEVEL = 24
 EDGE_STEP = 24
 #: The lit region must cover at least this share of the frame for a block to say anything about the border.
 MIN_LIT_FRACTION = 0.05
-#: Share of the border that must be unlit and flat (the rest may be text).
-BORDER_DARK_SHARE = 0.9
+#: Shares of the border that must be flat (unlit or text), and unlit (text never covers half of it).
+BORDER_FLAT_SHARE = 0.9
+BORDER_DARK_SHARE = 0.5
 #: Range (grey levels over a block) at or below which a border pixel counts as flat.
 FLAT_RANGE = 8
 #: A border smaller than this share of the frame is ignored (not worth a different method input).
@@ -69,6 +70,7 @@ OVERLAY_SLACK = 0.1
 
 _DISC3 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
 _DISC5 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+_SQUARE3 = np.ones((3, 3), np.uint8)
 
 
 def parse_content_mode(value: str) -> ContentMode:
@@ -178,15 +180,19 @@ def detect_fov(high: np.ndarray, low: np.ndarray) -> np.ndarray | None:
     inner, outer = high[inside.astype(bool)], high[outside.astype(bool)]
     if inner.size == 0 or outer.size == 0 or float(np.median(inner)) - float(np.median(outer)) < EDGE_STEP:
         return everything
-    return fov
+    # The hull runs through the outermost lit pixels; unlit pixels along its inside (a soft or compressed edge)
+    # are border too.
+    ring = inside.astype(bool) & (high <= DARK_LEVEL) & (high - low <= FLAT_RANGE)
+    return fov & ~ring
 
 
 def is_dark_border(high: np.ndarray, low: np.ndarray, border: np.ndarray) -> bool:
-    """True if nearly all of ``border`` stayed unlit and flat over the block (the rest may be text)."""
+    """True if nearly all of ``border`` stayed flat over the block and most of it unlit (the rest is text)."""
     if not border.any():
         return False
-    dark_flat = (high[border] <= DARK_LEVEL) & (high[border] - low[border] <= FLAT_RANGE)
-    return float(dark_flat.mean()) >= BORDER_DARK_SHARE
+    high_b = high[border]
+    flat = float((high_b - low[border] <= FLAT_RANGE).mean())
+    return flat >= BORDER_FLAT_SHARE and float((high_b <= DARK_LEVEL).mean()) >= BORDER_DARK_SHARE
 
 
 def detect_overlay(high: np.ndarray, low: np.ndarray, fov: np.ndarray) -> np.ndarray | None:
@@ -195,10 +201,11 @@ def detect_overlay(high: np.ndarray, low: np.ndarray, fov: np.ndarray) -> np.nda
     spread = cv2.subtract(high, low)
     if not fov.any() or float(np.median(spread[fov])) < MOVING_RANGE:
         return None
-    static = fov & (spread <= STATIC_RANGE) & (high > DARK_LEVEL) & (low < SATURATED)
+    # Text is looked for over the whole frame: a glyph just outside the field of view has its outline inside.
+    static = (spread <= STATIC_RANGE) & (high > DARK_LEVEL) & (low < SATURATED)
     if not static.any():
         return np.zeros_like(fov)
-    clipped = fov & (low >= SATURATED)
+    clipped = low >= SATURATED
     candidate = (static | (clipped & cv2.dilate(static.astype(np.uint8), _DISC3).astype(bool))).astype(np.uint8)
     contrast = cv2.morphologyEx(high, cv2.MORPH_GRADIENT, _DISC3)
     # Text strokes and their outline sit within a pixel of each other: group them with a 3x3 closing.
@@ -212,7 +219,7 @@ def detect_overlay(high: np.ndarray, low: np.ndarray, fov: np.ndarray) -> np.nda
     keep[0] = False
     text = keep[labels] & candidate.astype(bool)
     # One pixel of margin: the strokes' edges change a little under video compression.
-    return cv2.dilate(text.astype(np.uint8), _DISC3).astype(bool) & fov
+    return cv2.dilate(text.astype(np.uint8), _SQUARE3).astype(bool) & fov
 
 
 def detect_area(stats: BlockStats, previous: ContentArea | None = None) -> ContentArea:
