@@ -161,13 +161,15 @@ def detect_fov(high: np.ndarray, low: np.ndarray) -> np.ndarray | None:
     h, w = high.shape
     everything = np.ones((h, w), bool)
     lit = cv2.morphologyEx((high > DARK_LEVEL).astype(np.uint8), cv2.MORPH_OPEN, _DISC5)  # detaches thin text
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(lit, connectivity=8)
-    if n <= 1:
+    # The hull of a region's outline is the hull of the region (and far cheaper than of all its pixels).
+    outlines, _ = cv2.findContours(lit, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    if not outlines:
         return None
-    biggest = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-    if stats[biggest, cv2.CC_STAT_AREA] < MIN_LIT_FRACTION * h * w:
+    areas = [cv2.contourArea(c) for c in outlines]
+    biggest = outlines[int(np.argmax(areas))]
+    if max(areas) < MIN_LIT_FRACTION * h * w:
         return None
-    hull = cv2.convexHull(cv2.findNonZero((labels == biggest).astype(np.uint8)))
+    hull = cv2.convexHull(biggest)
     fov_u8 = np.zeros((h, w), np.uint8)
     cv2.fillConvexPoly(fov_u8, hull, 1)
     fov = fov_u8.astype(bool)
@@ -178,7 +180,7 @@ def detect_fov(high: np.ndarray, low: np.ndarray) -> np.ndarray | None:
     inside = fov_u8 - cv2.erode(fov_u8, _DISC5, iterations=2, borderType=cv2.BORDER_REPLICATE)
     outside = cv2.dilate(fov_u8, _DISC5, iterations=2) - fov_u8
     inner, outer = high[inside.astype(bool)], high[outside.astype(bool)]
-    if inner.size == 0 or outer.size == 0 or float(np.median(inner)) - float(np.median(outer)) < EDGE_STEP:
+    if inner.size == 0 or outer.size == 0 or median_u8(inner) - median_u8(outer) < EDGE_STEP:
         return everything
     # The hull runs through the outermost lit pixels; unlit pixels along its inside (a soft or compressed edge)
     # are border too.
@@ -186,8 +188,15 @@ def detect_fov(high: np.ndarray, low: np.ndarray) -> np.ndarray | None:
     return fov & ~ring
 
 
+def median_u8(values: np.ndarray) -> int:
+    """The (lower) median of uint8 values, from their histogram: linear time, where sorting 2 M pixels is not."""
+    counts = np.cumsum(cv2.calcHist([np.ascontiguousarray(values).reshape(-1, 1)], [0], None, [256], [0, 256]).ravel())
+    return int(np.searchsorted(counts, (counts[-1] + 1) // 2))
+
+
 def is_dark_border(high: np.ndarray, low: np.ndarray, border: np.ndarray) -> bool:
     """True if nearly all of ``border`` stayed flat over the block and most of it unlit (the rest is text)."""
+    high, low, border = high[::2, ::2], low[::2, ::2], border[::2, ::2]  # shares: every 4th pixel tells them
     if not border.any():
         return False
     high_b = high[border]
@@ -199,7 +208,7 @@ def detect_overlay(high: np.ndarray, low: np.ndarray, fov: np.ndarray) -> np.nda
     """``(H, W)`` bool fixed-text pixels inside ``fov``, or ``None`` when the block's scene did not change enough
     to tell (static text from a static scene)."""
     spread = cv2.subtract(high, low)
-    if not fov.any() or float(np.median(spread[fov])) < MOVING_RANGE:
+    if not fov.any() or median_u8(spread[::2, ::2][fov[::2, ::2]]) < MOVING_RANGE:
         return None
     # Text is looked for over the whole frame: a glyph just outside the field of view has its outline inside.
     static = (spread <= STATIC_RANGE) & (high > DARK_LEVEL) & (low < SATURATED)
@@ -250,25 +259,28 @@ class _Placement:
         self.rows, self.cols = slice(y, y + h), slice(x, x + w)
         inside = area.mask[self.rows, self.cols]
         self.inside_u8 = inside.astype(np.uint8)
-        self.holes = np.flatnonzero(~inside)  # in the box, flat: pixels the method gets filled
-        full_w = area.fov.shape[1]
-        ys, xs = np.divmod(self.holes, w)
-        self.kept = (ys + y) * full_w + (xs + x)  # the same pixels, flat in the frame: copied from the input
+        self.holes_u8 = (~inside).astype(np.uint8)  # in the box: pixels the method gets filled
+        self.has_holes = bool(self.holes_u8.any())
 
     def method_input(self, frame: np.ndarray) -> np.ndarray:
-        if not self.holes.size:
-            return np.ascontiguousarray(frame[self.rows, self.cols])
         box = frame[self.rows, self.cols].copy()
-        mean = cv2.mean(box, mask=self.inside_u8)[:3]
-        box.reshape(-1, 3)[self.holes] = np.round(mean).astype(np.uint8)
+        if self.has_holes:  # holes := the content's mean colour (cleared, then the mean added, both masked)
+            mean = tuple(float(round(v)) for v in cv2.mean(box, mask=self.inside_u8)[:3]) + (0.0,)
+            cv2.subtract(box, box, dst=box, mask=self.holes_u8)
+            cv2.add(box, mean, dst=box, mask=self.holes_u8)
         return box
 
     def output(self, frame: np.ndarray, enhanced_box: np.ndarray) -> np.ndarray:
         out = frame.copy()
-        out[self.rows, self.cols] = enhanced_box
-        if self.kept.size:
-            out.reshape(-1, 3)[self.kept] = frame.reshape(-1, 3)[self.kept]
+        _copy_into(enhanced_box, self.inside_u8, out[self.rows, self.cols])
         return out
+
+
+def _copy_into(src: np.ndarray, mask: np.ndarray, dst: np.ndarray) -> None:
+    """``dst[mask] = src[mask]`` in place (``dst`` may be a view), at OpenCV's speed (10x numpy's ``where``)."""
+    written = cv2.copyTo(src, mask, dst)
+    if not np.shares_memory(written, dst):  # OpenCV gave a new array instead of writing through the view
+        dst[...] = written
 
 
 class ContentStream(MethodStream):
