@@ -11,8 +11,8 @@ the block:
 
 - field of view: the convex hull of the largest region that was lit (brighter than ``DARK_LEVEL``) in the block.
   It counts as a border only if it is a real one: at least ``MIN_BORDER_FRACTION`` of the frame, nearly all
-  flat and mostly dark outside (the rest is text), with a sharp step at its edge (a dark lumen or vignetted corner fades; a border does
-  not). A frame without a border is therefore left exactly alone.
+  flat and mostly dark outside (the rest is text), with a sharp step at its edge (a dark lumen or vignetted
+  corner fades; a border does not). A frame without a border is therefore left exactly alone.
 - overlays: pixels inside the field of view that stayed constant (range <= ``STATIC_RANGE``) while the scene
   changed (median range >= ``MOVING_RANGE``), in groups with text-like contrast; a block whose scene did not
   change says nothing about overlays.
@@ -190,7 +190,8 @@ def detect_fov(high: np.ndarray, low: np.ndarray) -> np.ndarray | None:
 
 def median_u8(values: np.ndarray) -> int:
     """The (lower) median of uint8 values, from their histogram: linear time, where sorting 2 M pixels is not."""
-    counts = np.cumsum(cv2.calcHist([np.ascontiguousarray(values).reshape(-1, 1)], [0], None, [256], [0, 256]).ravel())
+    column = np.ascontiguousarray(values).reshape(-1, 1)
+    counts = np.cumsum(cv2.calcHist([column], [0], None, [256], [0, 256]).ravel())
     return int(np.searchsorted(counts, (counts[-1] + 1) // 2))
 
 
@@ -307,6 +308,10 @@ class ContentStream(MethodStream):
 
     def push(self, frame: np.ndarray) -> list[FrameResult]:
         check_frame(frame)
+        shape = (self._warmup[0] if self._warmup else self._placement.area.fov if self._placement else frame).shape
+        if frame.shape[:2] != shape[:2]:
+            raise ValueError(f"frame is {frame.shape[1]}x{frame.shape[0]}, the stream started at "
+                             f"{shape[1]}x{shape[0]}: start a new stream for a new frame size")
         self._stats.add(frame)
         if self._placement is None:
             self._warmup.append(frame)
@@ -381,7 +386,8 @@ class ContentStream(MethodStream):
 
 
 def content_stream(method: Method, mode: str = DEFAULT_CONTENT) -> MethodStream:
-    """A fresh stream of ``method`` for one clip, shown the content area (``auto``) or the whole frame (``full``)."""
+    """A fresh stream of ``method`` for one clip, shown the content area (``auto``) or the whole frame
+    (``full``)."""
     inner = method.stream()
     return ContentStream(inner) if parse_content_mode(mode) == "auto" else inner
 

@@ -224,3 +224,11 @@ def test_bad_content_option_is_refused(tmp_path: Path) -> None:
     assert result.exit_code == 2 and "content" in result.output
     with pytest.raises(ValueError, match="content must be one of auto, full"):
         ClipOptions(content="border")
+
+
+def test_a_new_frame_size_is_a_clear_error() -> None:
+    stream = ContentStream(create_method("none").stream(), detect_frames=2)
+    for i in range(3):
+        stream.push(np.full((20, 30, 3), 100 + i, np.uint8))
+    with pytest.raises(ValueError, match="30x21, the stream started at 30x20"):
+        stream.push(np.zeros((21, 30, 3), np.uint8))

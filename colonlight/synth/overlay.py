@@ -21,7 +21,9 @@ BORDERS: tuple[str, ...] = ("none", "round", "octagon")
 BORDER_LEVEL = 0
 TEXT_COLOUR = (235, 235, 235)
 #: The on-screen text: patient fields at the top left, time at the top right, scope settings at the bottom.
-TEXT_LINES = (("ID 0042-17", "top-left"), ("F 63y", "top-left-2"), ("10:24:37", "top-right"), ("Ex A2 E3", "bottom"))
+TEXT_LINES = (
+    ("ID 0042-17", "top-left"), ("F 63y", "top-left-2"), ("10:24:37", "top-right"), ("Ex A2 E3", "bottom"),
+)
 
 
 @dataclass(frozen=True)
@@ -54,7 +56,7 @@ class OverlaySpec:
         return asdict(self)
 
     def masks(self, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
-        """``(fov, text)``: ``(H, W)`` bool masks of the field of view and of the text pixels (outline included)."""
+        """``(fov, text)``: ``(H, W)`` bool masks of the field of view and of the text (outline included)."""
         text = text_mask(height, width) if self.text else np.zeros((height, width), bool)
         return fov_mask(height, width, self.border, self.fov), text
 
