@@ -63,6 +63,7 @@ def enhance(
     gamma: Optional[float] = typer.Option(None, "--gamma", help="Exponent for --method gamma (out = in ** gamma)."),
     device: str = options.Device,
     runtime: str = options.Runtime,
+    content: str = options.Content,
     frames: bool = typer.Option(True, "--frames/--no-frames", help="Write enhanced frame images."),
     video: bool = typer.Option(False, "--video/--no-video", help="Also write enhanced.mp4 (H.264, yuv420p, faststart)."),
     fmt: str = typer.Option("png", "--format", "-f", envvar="COLONLIGHT_FORMAT", help="Frame image format: png | jpg."),
@@ -89,7 +90,8 @@ def enhance(
         raise typer.Exit(2) from None
     try:
         clip_opts = ClipOptions(fps=fps or None, frames=frames, video=video, format=fmt, quality=quality,
-                                camera=None if cam is None else (cam.name, cam.text), max_pixels=max_pixels)
+                                camera=None if cam is None else (cam.name, cam.text), max_pixels=max_pixels,
+                                content=content)
     except ValueError as exc:
         raise typer.BadParameter(str(exc)) from exc
     spec = MethodSpec.of(method, **options.method_options(method, weights, model_size, device, gamma, runtime))

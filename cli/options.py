@@ -29,6 +29,12 @@ MaxPixels = typer.Option(
     DEFAULT_MAX_PIXELS, "--max-pixels", envvar=MAX_PIXELS_ENV, min=1,
     help="Largest frame (width x height) a clip may have; larger clips fail from their header, before decoding.",
 )
+Content = typer.Option(
+    "auto", "--content", envvar="COLONLIGHT_CONTENT",
+    help="auto: find the field of view inside a black border and fixed on-screen text, let the method see only "
+         "them and write border and text pixels unchanged (a frame without either is processed as with full); "
+         "full: the whole frame.",
+)
 Debug = typer.Option(False, "--debug", envvar="COLONLIGHT_DEBUG", help="Show tracebacks of errors.")
 Quiet = typer.Option(False, "--quiet", "-q", envvar="COLONLIGHT_QUIET", help="No live display: one line per clip, for logs.")
 

@@ -20,15 +20,22 @@ def synth(
     split: str = typer.Option("train", "--split", help="Parameter family: train | heldout (ranges never used in training)."),
     video: bool = typer.Option(True, "--video/--no-video", help="Write clip.mp4 (H.264)."),
     workers: int = typer.Option(2, "--workers", "-j", min=1),
+    border: str = typer.Option("none", "--border", help="Draw a scope's black border around the field of view: none | round | octagon."),
+    fov: float = typer.Option(0.96, "--fov", min=0.3, max=1.0, help="Field of view height as a share of the frame height (with --border)."),
+    text: bool = typer.Option(False, "--text/--no-text", help="Draw fixed on-screen text (patient fields, time, scope settings)."),
 ) -> None:
     """Render synthetic colonoscopy clips: frames/, clean/, depth/, poses.txt (TUM), intrinsics.json, lighting.json."""
     from colonlight.synth import make_dataset
+    from colonlight.synth.overlay import BORDERS, OverlaySpec
 
     if split not in ("train", "heldout"):
         raise typer.BadParameter("choose train or heldout", param_hint="--split")
+    if border not in BORDERS:
+        raise typer.BadParameter(f"choose one of {', '.join(BORDERS)}", param_hint="--border")
+    overlay = OverlaySpec(border=border, fov=fov, text=text)  # type: ignore[arg-type]
     paths = make_dataset(
         output, clips, seed=seed, split=split, width=width, height=height, n_frames=frames, fps=fps,
-        workers=workers, video=video,
+        workers=workers, video=video, overlay=overlay if overlay.active else None,
     )
     for p in paths:
         console.print(f"wrote {p}")

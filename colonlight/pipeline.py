@@ -33,6 +33,7 @@ import numpy as np
 
 from . import __version__
 from .atomic import publish, remove_stale_temporaries, write_json_atomic, write_temporary
+from .content import DEFAULT_CONTENT, content_stream, parse_content_mode
 from .errors import InputError
 from .frames import encode_image
 from .limits import MAX_FPS, max_pixels_setting
@@ -99,8 +100,10 @@ class ClipOptions:
     camera: tuple[str, str] | None = None  # (file name, text) of a DSO/COLMAP camera file to copy (slam_layout)
     #: Largest frame (width x height) decoded; larger clips fail from their header. Default: limits.max_pixels_setting()
     max_pixels: int = field(default_factory=max_pixels_setting)
+    content: str = DEFAULT_CONTENT  # auto: the method sees the field of view less fixed text (colonlight.content)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "content", parse_content_mode(self.content))
         if self.format not in ("png", "jpg"):
             raise ValueError(f"format must be png or jpg, got {self.format!r}")
         if not 1 <= self.quality <= 100:
@@ -130,6 +133,7 @@ def settings_record(method: Method, opts: ClipOptions) -> dict[str, Any]:
         "model": method.model_info(),
         "parameters": method.parameters(),
         "fps": opts.fps or None,
+        "content": opts.content,
         "outputs": {"frames": opts.frames, "video": opts.video, "format": opts.format, "quality": opts.quality},
         **camera_setting(opts.camera),
     }
@@ -293,7 +297,7 @@ def enhance_clip(
     first_size = head[0].image.shape[:2]
     video_fps = fps_out or _source_rate(head)
     sink = _FrameSink(out_dir, opts, video_fps)
-    stream = method.stream()
+    stream = content_stream(method, opts.content)
     waiting: deque[DecodedFrame] = deque()  # decoded frames whose result the method still holds back
     records: list[dict[str, Any]] = []
 

@@ -139,7 +139,7 @@ class JobManager:
     def clip_options(self, o: JobOptions, frames: bool | None = None) -> ClipOptions:
         fps = self.settings.fps if o.fps is None else o.fps
         return ClipOptions(fps=fps or None, frames=o.frames if frames is None else frames, video=True,
-                           format=o.format, quality=o.quality)
+                           format=o.format, quality=o.quality, content=o.content)
 
     async def check_method(self, spec: MethodSpec) -> None:
         """Build (and cache) the method for ``spec`` now, so that bad options are a 422, not a failed job."""

@@ -28,6 +28,7 @@ class JobOptions(BaseModel):
     format: Literal["png", "jpg"] = Field("png", description="Format of the enhanced frames (the zip).")
     quality: int = Field(95, ge=1, le=100, description="JPEG quality.")
     frames: bool = Field(True, description="Also write the enhanced frames (downloadable as a zip).")
+    content: Literal["auto", "full"] = Field("auto", description="auto: the method sees only the field of view inside a black border, less fixed on-screen text; border and text pixels are written unchanged. full: the whole frame.")
 
     @field_validator("*", mode="before")
     @classmethod
@@ -65,6 +66,7 @@ def upload_request_body(description: str) -> dict[str, Any]:
         "format": {"type": "string", "enum": ["png", "jpg"], "default": "png", "description": JobOptions.model_fields["format"].description},
         "quality": {"type": "integer", "minimum": 1, "maximum": 100, "default": 95, "description": JobOptions.model_fields["quality"].description},
         "frames": {"type": "boolean", "default": True, "description": JobOptions.model_fields["frames"].description},
+        "content": {"type": "string", "enum": ["auto", "full"], "default": "auto", "description": JobOptions.model_fields["content"].description},
     }
     return {
         "required": True,

@@ -254,6 +254,7 @@ def test_oversized_upload_is_413_and_leaves_nothing(client: httpx.Client, server
         ({"model_size": "4"}, 422, "model_size"),
         ({"format": "gif"}, 422, "format"),
         ({"quality": "0"}, 422, "quality"),
+        ({"content": "border"}, 422, "content"),
         ({"colour": "blue"}, 422, "colour"),
     ],
 )

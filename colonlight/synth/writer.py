@@ -12,10 +12,12 @@ Layout of one clip folder (every file written atomically; ``synth.json`` last, s
     intrinsics.json       pinhole fx, fy, cx, cy, width, height (pixels)
     lighting.json         the disturbance model and per-frame ground truth (gain, contrast, exposure, ...)
     synth.json            config, seed, colonlight and generator versions, file formats
+    content.png           only with an overlay (border, text): 255 where the scene shows, 0 on border and text
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
@@ -30,6 +32,7 @@ from ..errors import InputError
 from ..video import VideoWriter
 from .clip import SynthFrame, build_scene, render_frame
 from .config import Split, SynthConfig
+from .overlay import OverlaySpec
 
 GENERATOR_VERSION = "1.0"
 DEPTH_UNIT_M = 1e-4
@@ -153,9 +156,10 @@ def write_clip(
     clean: bool = True,
     depth: bool = True,
     crf: int = 18,
+    overlay: OverlaySpec | None = None,
 ) -> Path:
     """Render clip ``(cfg, seed)`` into ``out_dir`` (see the module docstring for the layout); returns
-    ``out_dir``."""
+    ``out_dir``. ``overlay`` draws a scope's border and on-screen text onto the frames and clean frames."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     scene = build_scene(cfg, seed)
@@ -165,6 +169,8 @@ def write_clip(
     try:
         for i in range(cfg.n_frames):
             f: SynthFrame = render_frame(scene, i)
+            if overlay is not None and overlay.active:
+                f = dataclasses.replace(f, image=overlay.apply(f.image), clean=overlay.apply(f.clean))
             if writer is not None:
                 writer.write(f.image)
             if frames:
@@ -196,9 +202,12 @@ def write_clip(
             "frames": per_frame,
         },
     )
-    write_json_atomic(
-        out_dir / "synth.json", _manifest(cfg, seed, video=video, frames=frames, clean=clean, depth=depth)
-    )
+    manifest = _manifest(cfg, seed, video=video, frames=frames, clean=clean, depth=depth)
+    if overlay is not None and overlay.active:
+        fov, text = overlay.masks(cfg.height, cfg.width)
+        _write_png(out_dir / "content.png", np.where(fov & ~text, 255, 0).astype(np.uint8))
+        manifest["overlay"] = overlay.to_dict()
+    write_json_atomic(out_dir / "synth.json", manifest)
     return out_dir
 
 
@@ -226,19 +235,21 @@ def _manifest(cfg: SynthConfig, seed: int, **written: bool) -> dict[str, Any]:
     }
 
 
-def _is_complete(out_dir: Path, cfg: SynthConfig, seed: int) -> bool:
-    """True if ``out_dir`` holds a finished clip of exactly this config and seed (resume support)."""
+def _is_complete(out_dir: Path, cfg: SynthConfig, seed: int, overlay: OverlaySpec | None = None) -> bool:
+    """True if ``out_dir`` holds a finished clip of exactly this config, seed and overlay (resume support)."""
     try:
         meta = json.loads((out_dir / "synth.json").read_text())
     except (OSError, ValueError):
         return False
-    return meta.get("seed") == seed and meta.get("config") == json.loads(json.dumps(cfg.to_dict()))
+    drawn = overlay.to_dict() if overlay is not None and overlay.active else None
+    return (meta.get("seed") == seed and meta.get("config") == json.loads(json.dumps(cfg.to_dict()))
+            and meta.get("overlay") == drawn)
 
 
-def _dataset_job(args: tuple[Path, dict[str, Any], int, dict[str, bool]]) -> Path:
+def _dataset_job(args: tuple[Path, dict[str, Any], int, dict[str, Any]]) -> Path:
     out_dir, cfg_dict, seed, flags = args
     cfg = SynthConfig.from_dict(cfg_dict)
-    if _is_complete(out_dir, cfg, seed):
+    if _is_complete(out_dir, cfg, seed, flags.get("overlay")):
         return out_dir
     return write_clip(out_dir, cfg, seed, **flags)
 
@@ -262,6 +273,7 @@ def make_dataset(
     steady_fraction: float = 0.0,
     occluder_fraction: float = 0.0,
     clean_seeds_fraction: float = 0.0,
+    overlay: OverlaySpec | None = None,
     **overrides: Any,
 ) -> list[Path]:
     """Render ``n_clips`` clips into ``out_dir/clip_00000`` ...; clip i uses seed ``seed + i`` and a config
@@ -272,6 +284,8 @@ def make_dataset(
     occluder moment, the paper's failure case: a wall that is bright because it is near, not because the
     exposure jumped. About ``clean_seeds_fraction`` of the clips (chosen by their seeds, independently) start
     with two undisturbed frames, as the evaluation's clips do.
+
+    ``overlay`` draws a scope's border and on-screen text onto every clip (:mod:`.overlay`).
 
     Finished clips with the same config and seed are kept (an interrupted run resumes). Use disjoint seed
     ranges for train and held-out sets.
@@ -291,7 +305,10 @@ def make_dataset(
         cfg = SynthConfig.sample(
             rng, split=split, width=width, height=height, n_frames=n_frames, fps=fps, **over
         )
-        jobs.append((out_dir / f"clip_{i:05d}", cfg.to_dict(), s, {"video": video}))
+        flags: dict[str, Any] = {"video": video}
+        if overlay is not None and overlay.active:
+            flags["overlay"] = overlay
+        jobs.append((out_dir / f"clip_{i:05d}", cfg.to_dict(), s, flags))
     if workers <= 1 or len(jobs) <= 1:
         return [_dataset_job(j) for j in jobs]
     ctx = multiprocessing.get_context("spawn")
