@@ -98,7 +98,7 @@ def missing_extras(colmap: bool = True) -> list[str]:
     """Distributions of the ``eval`` extra this evaluation needs that are not installed."""
     import importlib.util
 
-    needed = {"skimage": "scikit-image", "matplotlib": "matplotlib"}
+    needed = {"skimage": "scikit-image", "matplotlib": "matplotlib", "scipy": "scipy"}
     if colmap:
         needed.update(pycolmap="pycolmap", evo="evo")
     return [dist for module, dist in needed.items() if importlib.util.find_spec(module) is None]
