@@ -12,6 +12,8 @@ frames, by what changed between k and j:
 * ``exposure lag``: the auto-exposure's contribution ``exposure ** (contrast / camera_gamma)`` changed by
   more than 10 %;
 * ``tone-curve change``: the power-curve exponent (contrast) changed by more than 5 %;
+* ``after a failure``: none of these, but the input's previous frame failed too: a visual-odometry track that
+  has just gone wrong starts from a wrong motion prediction (and keyframe), so failures cascade;
 * ``other``: none of these (small changes together, noise).
 
 ``causes`` lists every one that applies; ``cause`` is the first of occluder and saturation that applies, else
@@ -28,7 +30,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-CAUSES = ("close occluder", "saturation", "gain jump", "exposure lag", "tone-curve change", "other")
+CAUSES = (
+    "close occluder", "saturation", "gain jump", "exposure lag", "tone-curve change", "after a failure", "other",
+)  # fmt: skip
 GAIN_CHANGE = math.log(1.10)
 EXPOSURE_CHANGE = math.log(1.10)
 CONTRAST_CHANGE = math.log(1.05)
@@ -56,6 +60,7 @@ def classify(
     light_j: Mapping[str, Any],
     saturated_excess: float,
     camera_gamma: float | None = None,
+    after_failure: bool = False,
 ) -> dict[str, Any]:
     """``cause``, ``causes`` and the measured ``changes`` between keyframe k and frame j (see the module)."""
     cg = float(camera_gamma or DEFAULT_CAMERA_GAMMA)
@@ -80,6 +85,8 @@ def classify(
         causes.append("saturation")
     lighting = sorted((c for c, v in scores.items() if v >= 1.0), key=lambda c: -scores[c])
     causes += lighting
+    if after_failure and not causes:
+        causes.append("after a failure")
     return {"cause": causes[0] if causes else "other", "causes": causes or ["other"], "changes": changes}
 
 
@@ -116,7 +123,7 @@ def clip_failures(
             k = int(t_in["keyframe_of"][j])
             light_k = lighting[k] if lighting else {}
             light_j = lighting[j] if lighting else {}
-            info = classify(light_k, light_j, max(excess(k), excess(j)), camera_gamma)
+            info = classify(light_k, light_j, max(excess(k), excess(j)), camera_gamma, not ok_in[j - 1])
             rescued = [
                 label
                 for label, by_mode in tracks.items()
