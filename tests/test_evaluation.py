@@ -387,7 +387,9 @@ def test_oracles_gap_closed_and_failure_breakdown_on_a_known_gain_jump(box: Eval
         t = record.results[label].tracking or {}
         assert t["fixed"]["success"] and t["affine"]["success"], label
     gammas = record.results["oracle-gamma"].gammas or []
-    assert gammas[:6] == pytest.approx([1.0] * 6, abs=0.01) and gammas[6:] == pytest.approx([0.7] * 6, abs=0.02)
+    assert gammas[:6] == pytest.approx([1.0] * 6, abs=0.01) and gammas[6:] == pytest.approx(
+        [0.7] * 6, abs=0.02
+    )
     failures = record.input_failures
     assert [f["frame"] for f in failures] == list(range(6, 12))
     assert all(f["brightness"] == "fixed" for f in failures)  # affine: the input tracks every frame
@@ -434,11 +436,17 @@ def test_failure_causes_from_lighting_ground_truth() -> None:
     assert classify(steady, {**steady, "contrast": 1.3}, 0.0)["cause"] == "tone-curve change"
     # exposure counts through exposure ** (contrast / camera_gamma): x2 at gamma 2.2 is x1.37 in display
     lag = classify(steady, {**steady, "exposure": 2.0}, 0.0, camera_gamma=2.2)
-    assert lag["cause"] == "exposure lag" and lag["changes"]["exposure_ratio"] == pytest.approx(2 ** (1 / 2.2))
+    assert lag["cause"] == "exposure lag" and lag["changes"]["exposure_ratio"] == pytest.approx(
+        2 ** (1 / 2.2)
+    )
     assert classify(steady, {**steady, "gain": 1.05}, 0.0)["cause"] == "other"  # below the 10 % threshold
     assert classify(steady, steady, 0.0, after_failure=True)["cause"] == "after a failure"
     both = classify(steady, {**steady, "gain": 1.2, "contrast": 1.5}, 0.2)
-    assert both["cause"] == "saturation" and both["causes"] == ["saturation", "tone-curve change", "gain jump"]
+    assert both["cause"] == "saturation" and both["causes"] == [
+        "saturation",
+        "tone-curve change",
+        "gain jump",
+    ]
     near = classify({**steady, "close_occluder": True}, {**steady, "gain": 2.0}, 0.0)
     assert near["cause"] == "close occluder" and "gain jump" in near["causes"]
 

@@ -252,9 +252,7 @@ def success_cell(r: dict[str, Any], mode: str) -> str:
     return f"{r[f'track_success_{mode}']}/{r['tracked']} ({fmt(r[f'track_success_rate_{mode}'], '.0%')})"
 
 
-def tracking_rows(
-    rows: Sequence[dict[str, Any]], modes: Sequence[str]
-) -> tuple[list[str], list[list[str]]]:
+def tracking_rows(rows: Sequence[dict[str, Any]], modes: Sequence[str]) -> tuple[list[str], list[list[str]]]:
     """Headers and cells of the tracking table: per brightness setting success, tracked fraction, the share of
     the input -> oracle-curve gap closed (success / tracked) and pose error."""
     headers = ["method", "clips"]
@@ -279,7 +277,7 @@ def breakdown_rows(breakdown: dict[str, Any], mode: str) -> tuple[list[str], lis
     """Headers and cells of one setting's failure breakdown: per cause the input's failures (that the clean
     frames pass) and, per method, how many of them it rescues."""
     b = breakdown.get(mode) or {}
-    labels = list((b.get("rescue") or {}))
+    labels = list(b.get("rescue") or {})
     headers = ["cause", "failures"] + [f"rescued by {lab}" for lab in labels]
     cells = []
     for cause in CAUSES:
@@ -469,7 +467,9 @@ def bars_plot(result: EvaluationResult, rows: Sequence[dict[str, Any]]) -> str |
             panels.append(
                 (f"tracker success rate ({m})", [r[f"track_success_rate_{m}"] or 0.0 for r in rows], None)
             )
-            panels.append((f"tracked fraction ({m})", [r[f"tracked_fraction_{m}"] or 0.0 for r in rows], None))
+            panels.append(
+                (f"tracked fraction ({m})", [r[f"tracked_fraction_{m}"] or 0.0 for r in rows], None)
+            )
     if any(r["colmap_clips"] for r in rows):
         panels.append(("COLMAP frames registered", [r["registered"] or 0.0 for r in rows], None))
     flick = [r["flicker_out"] if math.isfinite(r["flicker_out"]) else 0.0 for r in rows]
@@ -630,8 +630,8 @@ def write_report(result: EvaluationResult, out_dir: Path, command: str | None = 
 
 __all__ = [
     "DEFINITIONS",
-    "clean_json",
     "breakdown_rows",
+    "clean_json",
     "markdown_report",
     "provenance",
     "summarize",

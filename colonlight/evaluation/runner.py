@@ -398,7 +398,9 @@ def _score(
     return r
 
 
-def _reference_frames(clip: EvalClip, label: str) -> tuple[list[np.ndarray], list[float | None], float, float]:
+def _reference_frames(
+    clip: EvalClip, label: str
+) -> tuple[list[np.ndarray], list[float | None], float, float]:
     """The clean frames, or an oracle's corrected frames, with their gammas and cost (ms/frame wall, CPU)."""
     assert clip.clean is not None
     c0, t0 = time.process_time(), time.perf_counter()
@@ -482,23 +484,37 @@ def evaluate_clip(
         except Exception as exc:  # noqa: BLE001 - one method's bug must not lose the other results
             record.results[spec.label] = _errored(clip, spec.label, exc)
         if progress:
-            progress("method", {"clip": clip.name, "method": spec.label, "error": record.results[spec.label].error})
+            progress(
+                "method", {"clip": clip.name, "method": spec.label, "error": record.results[spec.label].error}
+            )
     input_label = next((spec.label for spec, _ in methods if spec.name == INPUT_NAME), None)
     if references and tracker and input_label is not None and clip.synthetic:
         assert clip.clean is not None
         tracks = {label: r.tracking for label, r in record.results.items() if r.tracking and not r.error}
         record.input_failures = clip_failures(
-            clip.frames, clip.clean, clip.lighting, tracks, input_label, CLEAN_LABEL, clip.meta.get("camera_gamma")
+            clip.frames,
+            clip.clean,
+            clip.lighting,
+            tracks,
+            input_label,
+            CLEAN_LABEL,
+            clip.meta.get("camera_gamma"),
         )
     return record, strips
 
 
 def _modes(brightness: Sequence[str] | str) -> tuple[str, ...]:
     """The brightness settings in table order (fixed first: the paper's); ``both`` means all."""
-    wanted = BRIGHTNESS_MODES if brightness == "both" else tuple(dict.fromkeys([brightness] if isinstance(brightness, str) else brightness))
+    wanted = (
+        BRIGHTNESS_MODES
+        if brightness == "both"
+        else tuple(dict.fromkeys([brightness] if isinstance(brightness, str) else brightness))
+    )
     bad = [m for m in wanted if m not in BRIGHTNESS_MODES]
     if bad or not wanted:
-        raise ValueError(f"unknown brightness setting {', '.join(bad) or '(none)'}; choose fixed, affine or both")
+        raise ValueError(
+            f"unknown brightness setting {', '.join(bad) or '(none)'}; choose fixed, affine or both"
+        )
     return tuple(m for m in BRIGHTNESS_MODES if m in wanted)
 
 
@@ -700,7 +716,11 @@ def _evaluate_clips(
                 progress("skipped", {"method": ", ".join(REFERENCE_LABELS), "error": NO_CLEAN_REASON})
     result.seconds = time.perf_counter() - t0
     if cache is not None:
-        result.settings["cache"] = {"folder": str(cache.folder), "reused": cache.hits, "computed": cache.misses}
+        result.settings["cache"] = {
+            "folder": str(cache.folder),
+            "reused": cache.hits,
+            "computed": cache.misses,
+        }
     return result
 
 
@@ -752,7 +772,9 @@ def summarize(result: EvaluationResult) -> list[dict[str, Any]]:
             "tracked": max((len(_tracks(rs, m)) for m in modes), default=0),
         }
         for m in BRIGHTNESS_MODES:
-            row.update(_tracking_fields(result, label, rs, m, breakdown.get(m) if m in modes else None, m in modes))
+            row.update(
+                _tracking_fields(result, label, rs, m, breakdown.get(m) if m in modes else None, m in modes)
+            )
         row.update(
             colmap_clips=len(cms),
             registered=_nanmean(c["fraction"] for c in cms) if cms else None,
@@ -790,10 +812,14 @@ def _tracking_fields(
         f"rescue_rate_{mode}": rescue.get("rate"),
         f"track_te_{mode}_m": _nanmedian(t.get("translation_error_m_median") for t in tracked),
         f"track_re_{mode}_deg": _nanmedian(t.get("rotation_error_deg_median") for t in tracked),
-        f"track_te_mean_tracked_{mode}_m": _nanmean(t.get("translation_error_m_mean_tracked") for t in tracked)
+        f"track_te_mean_tracked_{mode}_m": _nanmean(
+            t.get("translation_error_m_mean_tracked") for t in tracked
+        )
         if tracked
         else None,
-        f"track_re_mean_tracked_{mode}_deg": _nanmean(t.get("rotation_error_deg_mean_tracked") for t in tracked)
+        f"track_re_mean_tracked_{mode}_deg": _nanmean(
+            t.get("rotation_error_deg_mean_tracked") for t in tracked
+        )
         if tracked
         else None,
     }
@@ -850,9 +876,9 @@ __all__ = [
     "MethodClipResult",
     "build_methods",
     "evaluate_clip",
+    "evaluate_clips",
     "failure_breakdown",
     "input_label",
-    "evaluate_clips",
     "method_list",
     "missing_extras",
     "require_extras",

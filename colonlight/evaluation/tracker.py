@@ -90,7 +90,6 @@ import numpy as np
 
 from . import se3
 
-
 #: Per-frame affine brightness: "fixed" (a = b = 0, the paper's RNNSLAM setting) or "affine" (fitted).
 BRIGHTNESS_MODES = ("fixed", "affine")
 
