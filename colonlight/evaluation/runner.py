@@ -660,7 +660,10 @@ def _evaluate_clips(
         "max_frames": max_frames,
         "threads": threads,
         "colmap": asdict(colmap_settings) if colmap else None,
-        "tracker": asdict(tracker_settings) if tracker else None,
+        # the brightness setting is replaced by each of "brightness" below
+        "tracker": {k: v for k, v in asdict(tracker_settings).items() if k != "brightness"}
+        if tracker
+        else None,
         "brightness": list(brightness) if tracker else [],
         "oracles": oracles,
         "dark_threshold": 0.1,
