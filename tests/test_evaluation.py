@@ -213,6 +213,10 @@ def test_synthetic_clip_loads_at_working_size(tmp_path: Path) -> None:
     )
     assert half.meta["scale"] == 0.5 and half.meta["original_size"] == [96, 72]
     assert half.clean is not None and len(half.clean) == 5
+    # the lighting ground truth comes along (the failure breakdown reads it)
+    assert half.lighting is not None and len(half.lighting) == 5
+    assert {"gain", "contrast", "exposure", "close_occluder"} <= set(half.lighting[0])
+    assert half.meta["camera_gamma"] > 0
     # motion compensation stays exact at the working size: steady lighting, so MC-SSIM is high
     corrs = depth_correspondences(half.depths, half.poses or [], half.K)
     ssim = motion_compensated_ssim(half.frames, corrs, content_masks(half.frames))
