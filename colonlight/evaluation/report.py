@@ -119,8 +119,9 @@ DEFINITIONS: list[tuple[str, str]] = [
             "the frames the input fails and the clean frames pass (lighting, not motion, lost them), by what "
             "changed between keyframe and frame in the clip's lighting ground truth: close occluder (the tip "
             "at the wall), saturation (>= 5% more saturated pixels than clean), gain jump (display gain "
-            "> 10%), exposure lag (auto-exposure > 10%), tone-curve change (contrast exponent > 5%), other; "
-            "a method rescues a frame when its own track passes it."
+            "> 10%), exposure lag (auto-exposure > 10%), tone-curve change (contrast exponent > 5%), after a "
+            "failure (none of these, but the previous frame failed: a lost track cascades), other; a method "
+            "rescues a frame when its own track passes it."
         ),
     ),
     (
