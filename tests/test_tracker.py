@@ -261,7 +261,7 @@ def test_a_pure_gain_jump_fitted_brightness_tracks_it_fixed_does_not(gain_jump_c
     fixed = _track_mode(c, "input", "fixed")
     assert not fixed.success and fixed.failed_at == 8
     assert not fixed.frame_ok[8] and not fixed.frame_ok[14]  # into and out of the jump
-    assert fixed.frame_ok[1:8].all() and fixed.frame_ok[15:].all()
+    assert fixed.frame_ok[1:8].all()  # (after the jump a lost track may cascade: not asserted either way)
     assert np.all(fixed.affine == 0.0)  # a and b are never optimised
     for frames in ("undone", "clean"):
         res = _track_mode(c, frames, "fixed")
