@@ -41,7 +41,8 @@ def test_folder_with_a_video_and_a_corrupt_file(tmp_path: Path) -> None:
     assert good["correspondence"] == "optical flow" and good["info"]["frames"] == 10
     res = good["results"]
     assert set(res) == {"none", "he", "rnn (ours)"}
-    assert res["none"]["tracking"]["applicable"] is False  # no depth on a user's clip
+    assert res["none"]["tracking"]["fixed"]["applicable"] is False  # no depth on a user's clip
+    assert set(record["skipped_methods"]) == {"clean", "oracle-curve", "oracle-gamma"}  # no clean frames
     assert res["none"]["colmap"]["total"] == 10  # COLMAP still runs (intrinsics estimated)
     assert record["provenance"]["command"].startswith("colonlight evaluate ")
 
@@ -79,11 +80,12 @@ def test_rerun_reuses_tracking_and_colmap_and_adds_only_the_new_method(tmp_path:
     first = runner.invoke(app, [*base, "--methods", "none,he"])
     assert first.exit_code == 0, first.output
     one = json.loads((out / "results.json").read_text())
-    assert one["settings"]["cache"]["reused"] == 0 and one["settings"]["cache"]["computed"] == 4  # 2 x (track, colmap)
+    # 2 methods + 3 reference rows (clean, oracle-curve, oracle-gamma), each tracked in 2 settings + COLMAP once
+    assert one["settings"]["cache"]["reused"] == 0 and one["settings"]["cache"]["computed"] == 15
     second = runner.invoke(app, [*base, "--methods", "none,he,clahe"])
     assert second.exit_code == 0, second.output
     two = json.loads((out / "results.json").read_text())
-    assert two["settings"]["cache"] == {"folder": str(out / "cache"), "reused": 4, "computed": 2}
+    assert two["settings"]["cache"] == {"folder": str(out / "cache"), "reused": 15, "computed": 3}
     for label in ("none", "he"):
         a, b = one["clips"][0]["results"][label], two["clips"][0]["results"][label]
         assert a["colmap"] == b["colmap"] and a["tracking"] == b["tracking"]
@@ -91,4 +93,37 @@ def test_rerun_reuses_tracking_and_colmap_and_adds_only_the_new_method(tmp_path:
     # the key is the frames' content: other frames (another gamma) are scored afresh
     third = runner.invoke(app, [*base, "--methods", "gamma", "--no-colmap"])
     assert third.exit_code == 0, third.output
-    assert json.loads((out / "results.json").read_text())["settings"]["cache"]["computed"] == 1
+    assert (
+        json.loads((out / "results.json").read_text())["settings"]["cache"]["computed"] == 2
+    )  # fixed, affine
+
+
+def test_brightness_both_fixed_and_bad(tmp_path: Path) -> None:
+    """--brightness both (the default) puts both settings, the oracles and the gap closed in every output, the
+    paper's (fixed) first; --brightness fixed tracks only in it, reusing the cached tracks; a bad value is a
+    usage error."""
+    out = tmp_path / "bench"
+    base = ["evaluate", "--synthetic", "1", "--frames", "10", "--size", "64", "--methods", "none,rnn",
+            "--no-colmap", "-o", str(out), "-q"]  # fmt: skip
+    both = runner.invoke(app, [*base, "--brightness", "both"])
+    assert both.exit_code == 0, both.output
+    record = json.loads((out / "results.json").read_text())
+    assert record["settings"]["brightness"] == ["fixed", "affine"]
+    rows = {r["method"]: r for r in record["summary"]}
+    assert list(rows) == ["clean", "oracle-curve", "oracle-gamma", "none", "rnn (ours)"]
+    for m in ("fixed", "affine"):
+        assert (
+            rows["none"][f"track_success_{m}"] in (0, 1) and 0 <= rows["none"][f"tracked_fraction_{m}"] <= 1
+        )
+        assert f"gap_closed_tracked_{m}" in rows["rnn (ours)"] and f"rescue_rate_{m}" in rows["rnn (ours)"]
+    assert set(record["failure_breakdown"]) == {"fixed", "affine"}
+    md = (out / "table.md").read_text()
+    assert md.index("fixed: success") < md.index("affine: success") and "gap closed" in md
+    assert "fixed: success" in both.output.replace("\n", "") or "fixed" in both.output
+    fixed = runner.invoke(app, [*base, "--brightness", "fixed"])
+    assert fixed.exit_code == 0, fixed.output
+    again = json.loads((out / "results.json").read_text())
+    assert again["settings"]["brightness"] == ["fixed"] and again["settings"]["cache"]["computed"] == 0
+    assert again["summary"][3]["track_success_affine"] is None
+    bad = runner.invoke(app, [*base, "--brightness", "mode2"])
+    assert bad.exit_code == 2 and "fixed, affine or both" in bad.output

@@ -213,6 +213,10 @@ def test_synthetic_clip_loads_at_working_size(tmp_path: Path) -> None:
     )
     assert half.meta["scale"] == 0.5 and half.meta["original_size"] == [96, 72]
     assert half.clean is not None and len(half.clean) == 5
+    # the lighting ground truth comes along (the failure breakdown reads it)
+    assert half.lighting is not None and len(half.lighting) == 5
+    assert {"gain", "contrast", "exposure", "close_occluder"} <= set(half.lighting[0])
+    assert half.meta["camera_gamma"] > 0
     # motion compensation stays exact at the working size: steady lighting, so MC-SSIM is high
     corrs = depth_correspondences(half.depths, half.poses or [], half.K)
     ssim = motion_compensated_ssim(half.frames, corrs, content_masks(half.frames))
@@ -334,29 +338,121 @@ def test_colmap_failing_to_initialise_is_zero_registered() -> None:
 # -------------------------------------------------------------------------------------- tracker and runner
 
 
-def test_tracker_through_the_runner_on_known_motion(box: EvalClip) -> None:
-    """The photometric tracker follows the box's known motion under the success threshold, also after a gain
-    jump in the middle of the clip (its per-frame affine brightness model absorbs it)."""
-    jump = EvalClip(
-        "box-jump", "analytic",
-        [f if i < 6 else (f * 0.7).astype(np.uint8) for i, f in enumerate(box.frames)],
-        depths=box.depths, poses=box.poses, K=box.K,
+def _gain_jump(box: EvalClip, gain: float = 0.7, start: int = 6) -> EvalClip:
+    """The box clip darkened by ``gain`` from frame ``start`` on, with the box itself as its clean frames and the
+    jump recorded as lighting ground truth (as a synthetic clip's lighting.json records it)."""
+    gains = [1.0 if i < start else gain for i in range(len(box.frames))]
+    return EvalClip(
+        "box-jump", "analytic", [np.rint(f * g).astype(np.uint8) for f, g in zip(box.frames, gains, strict=True)],
+        depths=box.depths, poses=box.poses, K=box.K, clean=box.frames,
+        lighting=[{"gain": g, "contrast": 1.0, "exposure": 1.0, "close_occluder": False} for g in gains],
     )  # fmt: skip
+
+
+def test_tracker_through_the_runner_on_known_motion(box: EvalClip) -> None:
+    """The photometric tracker follows the box's known motion under the success threshold in both brightness
+    settings; after a gain jump in the middle of the clip only fitted brightness (affine) absorbs it."""
+    jump = _gain_jump(box)
+    jump.clean = None
     none = EvalMethod.of("none", "none")
     for clip in (box, jump):
         record, _ = evaluate_clip(clip, [(none, none.build())], colmap=False, tracker=True)
-        t = record.results["none"].tracking
-        assert t is not None and t["applicable"] and t["success"], t
-        assert t["failed_at"] is None
-        assert max(t["translation_error_m"]) < 0.002 and max(t["rotation_error_deg"]) < 3.0
+        tracking = record.results["none"].tracking
+        assert tracking is not None and set(tracking) == {"fixed", "affine"}
+        for mode, t in tracking.items():
+            assert t["applicable"] and t["brightness"] == mode
+            if clip is jump and mode == "fixed":
+                assert not t["success"] and t["failed_at"] == 6 and t["tracked_fraction"] < 0.6
+                continue
+            assert t["success"] and t["failed_at"] is None and t["tracked_fraction"] == 1.0, (mode, t)
+            assert max(t["translation_error_m"]) < 0.002 and max(t["rotation_error_deg"]) < 3.0
         assert record.correspondence == "depth+pose"
+        assert set(record.results) == {"none"} and record.input_failures == []  # no clean frames: no oracles
+    record, _ = evaluate_clip(box, [(none, none.build())], colmap=False, brightness=["fixed"])
+    assert set(record.results["none"].tracking or {}) == {"fixed"}
     user = EvalClip("user", "video", box.frames[:4])
     record, _ = evaluate_clip(user, [(none, none.build())], colmap=False, tracker=True)
-    assert record.results["none"].tracking == {
-        "applicable": False,
-        "reason": "no depth: tracking needs a synthetic clip's known depth",
-    }
+    reason = {"applicable": False, "reason": "no depth: tracking needs a synthetic clip's known depth"}
+    assert record.results["none"].tracking == {"fixed": reason, "affine": reason}
     assert record.correspondence == "optical flow"
+
+
+def test_oracles_gap_closed_and_failure_breakdown_on_a_known_gain_jump(box: EvalClip) -> None:
+    """Known answers: with brightness fixed the input fails from the jump on (frame 6: a gain jump; the frames
+    after it follow a failure), the clean frames and both oracles track every frame and rescue all of those, a
+    fixed gamma of 0.7 rescues the last two; with brightness fitted nothing fails. The gap closed is
+    (method - input) / (oracle-curve - input): 0 for the input, 1 for the oracle."""
+    clip = _gain_jump(box)
+    specs = [EvalMethod.of("none", "none"), EvalMethod.of("gamma", "gamma", gamma=0.7)]
+    result = evaluate_clips([clip], specs, colmap=False)
+    assert result.labels == ["clean", "oracle-curve", "oracle-gamma", "none", "gamma"]
+    (record,) = result.clips
+    for label in ("clean", "oracle-curve", "oracle-gamma"):
+        t = record.results[label].tracking or {}
+        assert t["fixed"]["success"] and t["affine"]["success"], label
+    gammas = record.results["oracle-gamma"].gammas or []
+    assert gammas[:6] == pytest.approx([1.0] * 6, abs=0.01) and gammas[6:] == pytest.approx(
+        [0.7] * 6, abs=0.02
+    )
+    failures = record.input_failures
+    assert [f["frame"] for f in failures] == list(range(6, 12))
+    assert all(f["brightness"] == "fixed" for f in failures)  # affine: the input tracks every frame
+    first = failures[0]
+    assert first["cause"] == "gain jump" and first["changes"]["gain_ratio"] == pytest.approx(0.7)
+    assert [f["cause"] for f in failures[1:]] == ["after a failure"] * 5
+    assert all({"oracle-curve", "oracle-gamma"} <= set(f["rescued_by"]) for f in failures)
+    assert [f["frame"] for f in failures if "gamma" in f["rescued_by"]] == [10, 11]
+
+    rows = {r["method"]: r for r in summarize(result)}
+    none, gamma, curve = rows["none"], rows["gamma"], rows["oracle-curve"]
+    assert none["tracked_fraction_fixed"] == pytest.approx(5 / 11) and none["track_success_fixed"] == 0
+    assert none["tracked_fraction_affine"] == 1.0 and none["track_success_affine"] == 1
+    assert curve["tracked_fraction_fixed"] == 1.0 and curve["track_success_rate_fixed"] == 1.0
+    assert none["gap_closed_tracked_fixed"] == 0.0 and curve["gap_closed_tracked_fixed"] == 1.0
+    assert gamma["gap_closed_tracked_fixed"] == pytest.approx((7 / 11 - 5 / 11) / (1 - 5 / 11))
+    assert gamma["gap_closed_success_fixed"] == 0.0 and curve["gap_closed_success_fixed"] == 1.0
+    assert none["gap_closed_tracked_affine"] is None  # the input already tracks every frame: no gap
+    assert gamma["rescued_fixed"] == 2 and gamma["rescue_rate_fixed"] == pytest.approx(2 / 6)
+    assert curve["rescue_rate_fixed"] == 1.0 and curve["rescue_rate_affine"] is None
+    fb = result.to_dict()["failure_breakdown"]
+    assert fb["fixed"]["failures"] == 6 and fb["affine"]["failures"] == 0
+    assert fb["fixed"]["causes"]["gain jump"] == 1 and fb["fixed"]["causes"]["after a failure"] == 5
+    assert fb["fixed"]["rescue"]["gamma"]["by_cause"]["after a failure"] == pytest.approx(2 / 5)
+
+
+def test_reference_rows_are_skipped_with_a_reason_without_clean_frames(box: EvalClip) -> None:
+    result = evaluate_clips([box], [EvalMethod.of("none", "none")], colmap=False, brightness="fixed")
+    assert result.labels == ["none"] and result.settings["brightness"] == ["fixed"]
+    assert set(result.skipped_methods) == {"clean", "oracle-curve", "oracle-gamma"}
+    assert "clean frames" in result.skipped_methods["clean"]
+    (row,) = summarize(result)
+    assert row["track_success_fixed"] == 1 and row["track_success_affine"] is None
+    assert row["gap_closed_tracked_fixed"] is None  # no oracle to measure the gap against
+    with pytest.raises(ValueError, match="brightness"):
+        evaluate_clips([box], [EvalMethod.of("none", "none")], colmap=False, brightness="mode2")
+
+
+def test_failure_causes_from_lighting_ground_truth() -> None:
+    from colonlight.evaluation.breakdown import classify
+
+    steady = {"gain": 1.0, "contrast": 1.0, "exposure": 1.0}
+    assert classify(steady, {**steady, "gain": 1.6}, 0.0)["cause"] == "gain jump"
+    assert classify(steady, {**steady, "contrast": 1.3}, 0.0)["cause"] == "tone-curve change"
+    # exposure counts through exposure ** (contrast / camera_gamma): x2 at gamma 2.2 is x1.37 in display
+    lag = classify(steady, {**steady, "exposure": 2.0}, 0.0, camera_gamma=2.2)
+    assert lag["cause"] == "exposure lag" and lag["changes"]["exposure_ratio"] == pytest.approx(
+        2 ** (1 / 2.2)
+    )
+    assert classify(steady, {**steady, "gain": 1.05}, 0.0)["cause"] == "other"  # below the 10 % threshold
+    assert classify(steady, steady, 0.0, after_failure=True)["cause"] == "after a failure"
+    both = classify(steady, {**steady, "gain": 1.2, "contrast": 1.5}, 0.2)
+    assert both["cause"] == "saturation" and both["causes"] == [
+        "saturation",
+        "tone-curve change",
+        "gain jump",
+    ]
+    near = classify({**steady, "close_occluder": True}, {**steady, "gain": 2.0}, 0.0)
+    assert near["cause"] == "close occluder" and "gain jump" in near["causes"]
 
 
 @pytest.fixture(scope="module")
@@ -385,14 +481,16 @@ def test_every_method_through_the_runner(all_methods_run: tuple) -> None:
             assert "\n" not in result.skipped_methods[name]
     (clip,) = result.clips
     assert set(clip.results) == set(result.labels)
+    assert result.labels[:3] == ["clean", "oracle-curve", "oracle-gamma"]  # the clip has clean frames
     assert {"none", "he", "clahe", "agcwd", "deflicker", "gamma", "rnn (ours)"} <= set(result.labels)
     for label, r in clip.results.items():
         assert r.error is None, (label, r.error)
         assert r.frames == 10 and len(r.luma_out) == 10 and len(r.ssim_series) == 9
         for v in (r.flicker_out, r.ssim_out, r.dark_out, r.bright_out, r.ms_per_frame):
             assert math.isfinite(v), label
-        assert r.tracking is not None and r.tracking["applicable"]
-        assert isinstance(r.tracking["success"], bool)
+        assert r.tracking is not None and set(r.tracking) == {"fixed", "affine"}
+        for t in r.tracking.values():
+            assert t["applicable"] and isinstance(t["success"], bool) and 0.0 <= t["tracked_fraction"] <= 1.0
     none = clip.results["none"]
     assert (
         none.flicker_out == none.flicker_in
@@ -429,6 +527,11 @@ def test_report_files_are_complete_and_self_contained(all_methods_run: tuple) ->
     assert len(paths["csv"].read_text().splitlines()) == 1 + len(result.labels)
     page = paths["html"].read_text()
     assert page.count("data:image/png;base64,") >= 2  # success bars + the clip's luminance/gamma plot
-    # before/after strips: the input, then each method but `none` (the input itself)
-    assert page.count("data:image/jpeg;base64,") == 1 + len(result.labels) - 1
+    # before/after strips: the input, the clean frames, then each method but `none` (the input itself)
+    assert page.count("data:image/jpeg;base64,") == 1 + 1 + len(result.labels) - 4
+    assert "<h2>Tracking</h2>" in page and "## Tracking" in md
+    for text in ("fixed: gap closed", "affine: tracked", "DSO with mode=2"):
+        assert text in page and text in md
+    assert md.index("fixed: success") < md.index("affine: success")  # the paper's setting leads
+    assert "gap_closed_tracked_fixed" in header and "tracked_fraction_affine" in header
     assert not re.search(r"https?://|<script|<link|src=\"(?!data:)", page)

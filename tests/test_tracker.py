@@ -207,3 +207,67 @@ def test_se3_exp_log_round_trip() -> None:
             assert se3.rotation_angle_deg(T[:3, :3]) == pytest.approx(np.degrees(angle), abs=1e-6)
     with pytest.raises(ValueError):
         se3.exp(np.zeros(5))
+
+
+# ------------------------------------------------------------------------ brightness fixed vs fitted
+
+
+@pytest.fixture(scope="module")
+def gain_jump_clip() -> dict[str, object]:
+    """A steady 64-px generator clip, and the same clip with frames 8..13 multiplied by 0.6 (a pure gain jump
+    in and out), and that input with the gain undone (divided by 0.6: only rounding differs from clean)."""
+    from colonlight.synth import SynthConfig, build_scene, generate_clip
+
+    seed = 1
+    cfg = SynthConfig.sample(
+        np.random.default_rng(seed), split="train", width=64, height=64, n_frames=20, steady=True,
+        close_occluder="forbid",
+    )  # fmt: skip
+    frames = list(generate_clip(cfg, seed))
+    it = build_scene(cfg, seed).intrinsics
+    clean = [f.clean for f in frames]
+    jumped = range(8, 14)
+
+    def scaled(imgs: list[np.ndarray], g: float) -> list[np.ndarray]:
+        return [
+            np.clip(np.rint(f * g), 0, 255).astype(np.uint8) if i in jumped else f for i, f in enumerate(imgs)
+        ]
+
+    gained = scaled(clean, 0.6)
+    return {
+        "clean": clean,
+        "input": gained,
+        "undone": scaled(gained, 1 / 0.6),
+        "depths": [f.depth for f in frames],
+        "poses": [f.pose for f in frames],
+        "K": np.array([[it.fx, 0.0, it.cx], [0.0, it.fy, it.cy], [0.0, 0.0, 1.0]]),
+    }
+
+
+def _track_mode(c: dict, frames: str, brightness: str) -> TrackResult:
+    with np.errstate(all="ignore"):
+        return track_clip(c[frames], c["depths"], c["K"], c["poses"], TrackerSettings(brightness=brightness))
+
+
+def test_a_pure_gain_jump_fitted_brightness_tracks_it_fixed_does_not(gain_jump_clip: dict) -> None:
+    """Fitted brightness (DSO mode=1) absorbs a gain jump; with brightness fixed (mode=2, the paper's) the jump's
+    first and last frames (keyframe on one side, frame on the other) fail, and undoing the gain rescues them."""
+    c = gain_jump_clip
+    fitted = _track_mode(c, "input", "affine")
+    assert fitted.success and fitted.frame_ok.all(), fitted.failure_reason
+    # the jump, seen as a brightness step in and out (the clip's own shading drifts slowly besides)
+    assert fitted.affine[8, 0] - fitted.affine[7, 0] == pytest.approx(np.log(0.6), abs=0.05)
+    assert fitted.affine[14, 0] - fitted.affine[13, 0] == pytest.approx(-np.log(0.6), abs=0.05)
+    fixed = _track_mode(c, "input", "fixed")
+    assert not fixed.success and fixed.failed_at == 8
+    assert not fixed.frame_ok[8] and not fixed.frame_ok[14]  # into and out of the jump
+    assert fixed.frame_ok[1:8].all()  # (after the jump a lost track may cascade: not asserted either way)
+    assert np.all(fixed.affine == 0.0)  # a and b are never optimised
+    for frames in ("undone", "clean"):
+        res = _track_mode(c, frames, "fixed")
+        assert res.success and res.frame_ok.all(), (frames, res.failure_reason)
+
+
+def test_brightness_setting_is_validated() -> None:
+    with pytest.raises(ValueError, match="brightness must be one of fixed, affine"):
+        TrackerSettings(brightness="mode2")

@@ -2,6 +2,6 @@
 
 from __future__ import annotations
 
-from .tracker import TrackerSettings, TrackResult, track_clip
+from .tracker import BRIGHTNESS_MODES, TrackerSettings, TrackResult, track_clip
 
-__all__ = ["TrackResult", "TrackerSettings", "track_clip"]
+__all__ = ["BRIGHTNESS_MODES", "TrackResult", "TrackerSettings", "track_clip"]

@@ -51,7 +51,9 @@ class EvalClip:
         depths: z-depth per frame in metres, float32, ``inf`` where unknown (synthetic clips).
         poses: camera-to-world 4x4 per frame, metres, OpenCV axes (synthetic clips).
         K: 3x3 pinhole intrinsics at working size, pixel centres at integer coordinates.
-        clean: the frames without lighting disturbance (synthetic clips).
+        clean: the frames without lighting disturbance (synthetic clips; or a user's own ground truth).
+        lighting: per-frame lighting ground truth of a synthetic clip (``lighting.json``'s ``frames``: gain,
+            contrast, exposure, display_gain, disturbed, close_occluder), used to say why a frame failed.
         meta: facts about the clip worth recording (seed, close occluder moments, original size, scale).
     """
 
@@ -63,6 +65,7 @@ class EvalClip:
     poses: list[np.ndarray] | None = None
     K: np.ndarray | None = None
     clean: list[np.ndarray] | None = None
+    lighting: list[dict[str, Any]] | None = None
     meta: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -196,11 +199,15 @@ def load_synthetic_clip(
         [resize_frame(read_image(p), size) for p in clean_paths] if len(clean_paths) == len(frames) else None
     )
     occluder = None
+    per_frame: list[dict[str, Any]] | None = None
+    camera_gamma = None
     try:
         lighting = json.loads((folder / "lighting.json").read_text(encoding="utf-8"))
-        occluder = [bool(f.get("close_occluder")) for f in lighting["frames"]][: len(frames)]
-    except (OSError, ValueError, KeyError, TypeError):
-        pass
+        per_frame = [dict(f) for f in lighting["frames"]][: len(frames)]
+        occluder = [bool(f.get("close_occluder")) for f in per_frame]
+        camera_gamma = lighting.get("camera_gamma")
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        per_frame = None
     return EvalClip(
         name=name or folder.name,
         source=str(folder),
@@ -210,6 +217,7 @@ def load_synthetic_clip(
         poses=poses,
         K=scale_intrinsics(K0, size[0] / w0, size[1] / h0),
         clean=clean,
+        lighting=per_frame if per_frame is not None and len(per_frame) == len(frames) else None,
         meta={
             "seed": meta.get("seed"),
             "split": cfg.get("split"),
@@ -217,6 +225,7 @@ def load_synthetic_clip(
             "occluder_frames": int(sum(occluder)) if occluder else 0,
             "original_size": [w0, h0],
             "scale": scale,
+            "camera_gamma": camera_gamma,
         },
     )
 

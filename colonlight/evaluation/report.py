@@ -24,7 +24,9 @@ from .. import __version__
 from ..atomic import write_bytes_atomic, write_json_atomic
 from ..frames import encode_image
 from ..provenance import distribution_versions, library_versions
-from .runner import EvaluationResult, summarize
+from .breakdown import CAUSES
+from .runner import EvaluationResult, failure_breakdown, summarize
+from .tracker import BRIGHTNESS_MODES
 
 RESULTS_FILE, TABLE_MD, TABLE_CSV, CLIPS_CSV, REPORT_HTML = (
     "results.json",
@@ -68,12 +70,58 @@ DEFINITIONS: list[tuple[str, str]] = [
         ),
     ),
     (
+        "brightness fixed / affine",
+        (
+            "the tracker's per-frame affine brightness e^-a (I - b). fixed: a = b = 0, not optimised, only the "
+            "6 pose unknowns solved: the paper's setting (RNNSLAM runs DSO with mode=2, "
+            "setting_affineOptModeA/B = -1), in which every lighting change between keyframe and frame is a "
+            "residual. affine: a and b fitted per frame (DSO mode=1), which absorbs gain and exposure changes."
+        ),
+    ),
+    (
         "tracker success",
         (
             "clips tracked without any frame's pose error over the tracker's threshold (see "
             "colonlight.evaluation.tracker: translation > max(2 mm, 25% of the true keyframe-to-frame "
             "motion), rotation > 3 degrees, divergence or too few valid points), over clips with known depth "
-            "(synthetic)."
+            "(synthetic), per brightness setting."
+        ),
+    ),
+    (
+        "tracked",
+        (
+            "per clip, the fraction of frames 1.. (each a keyframe -> frame pair) whose pose is within those "
+            "thresholds and not lost; the mean over clips."
+        ),
+    ),
+    (
+        "clean, oracle-curve, oracle-gamma",
+        (
+            "reference rows on clips with clean frames. clean: the clean frames themselves. oracle-curve: "
+            "each frame mapped by the least-squares best monotone 256-entry tone curve from input to clean "
+            "(weighted isotonic regression). oracle-gamma: the least-squares best single gamma per frame, "
+            "applied as the product applies one (256-entry LUT, within its clamp range). They see the answer: "
+            "ceilings for any method that applies one global correction per frame."
+        ),
+    ),
+    (
+        "gap closed",
+        (
+            "(method - input) / (oracle-curve - input) for success rate and for tracked fraction, per "
+            "brightness setting, over the clips the method, the input and oracle-curve all tracked: 0 = no "
+            "better than the input, 100% = as good as the best global tone curve per frame; n/a when the "
+            "oracle is no better than the input."
+        ),
+    ),
+    (
+        "failure breakdown",
+        (
+            "the frames the input fails and the clean frames pass (lighting, not motion, lost them), by what "
+            "changed between keyframe and frame in the clip's lighting ground truth: close occluder (the tip "
+            "at the wall), saturation (>= 5% more saturated pixels than clean), gain jump (display gain "
+            "> 10%), exposure lag (auto-exposure > 10%), tone-curve change (contrast exponent > 5%), after a "
+            "failure (none of these, but the previous frame failed: a lost track cascades), other; a method "
+            "rescues a frame when its own track passes it."
         ),
     ),
     (
@@ -168,16 +216,11 @@ def table_rows(rows: Sequence[dict[str, Any]]) -> tuple[list[str], list[list[str
     """Headers and formatted cells of the summary table (one row per method)."""
     headers = [
         "method", "clips", "flicker in -> out", "flicker cut", "MC-SSIM in -> out", "dark % in -> out",
-        "bright % in -> out", "tracker success", "pose error (mm / deg)", "COLMAP registered",
+        "bright % in -> out", "COLMAP registered",
         "ATE rmse / mean / std / min / median / max (mm)", "ms/frame (wall / CPU)",
     ]  # fmt: skip
     cells = []
     for r in rows:
-        tracked = r["tracked"]
-        success = (
-            f"{r['track_success']}/{tracked} ({fmt(r['track_success_rate'], '.0%')})" if tracked else "n/a"
-        )
-        pose = f"{fmt(r['track_te_m'], '.2f', 1000)} / {fmt(r['track_re_deg'], '.2f')}" if tracked else "n/a"
         ate = " / ".join(
             fmt(r[f"ate_{k}_m"], ".2f", 1000) for k in ("rmse", "mean", "std", "min", "median", "max")
         )
@@ -190,14 +233,79 @@ def table_rows(rows: Sequence[dict[str, Any]]) -> tuple[list[str], list[list[str
                 fmt_pair(r["ssim_in"], r["ssim_out"], ".3f"),
                 fmt_pair(r["dark_in"], r["dark_out"], ".1f", 100),
                 fmt_pair(r["bright_in"], r["bright_out"], ".2f", 100),
-                success,
-                pose,
                 fmt(r["registered"], ".0%") if r["colmap_clips"] else "n/a",
                 f"{ate} ({r['ate_clips']} clips)" if r["ate_clips"] else "n/a",
                 f"{fmt(r['ms_per_frame'], '.1f')} / {fmt(r['cpu_ms_per_frame'], '.1f')}",
             ]
         )
     return headers, cells
+
+
+def run_modes(result: EvaluationResult) -> tuple[str, ...]:
+    """The brightness settings tracked in, in table order (fixed, the paper's, first)."""
+    return tuple(result.settings.get("brightness") or ())
+
+
+def success_cell(r: dict[str, Any], mode: str) -> str:
+    """``"k/n (rate)"`` of one brightness setting."""
+    if not r["tracked"] or r.get(f"track_success_{mode}") is None:
+        return "n/a"
+    return f"{r[f'track_success_{mode}']}/{r['tracked']} ({fmt(r[f'track_success_rate_{mode}'], '.0%')})"
+
+
+def tracking_rows(rows: Sequence[dict[str, Any]], modes: Sequence[str]) -> tuple[list[str], list[list[str]]]:
+    """Headers and cells of the tracking table: per brightness setting success, tracked fraction, the share of
+    the input -> oracle-curve gap closed (success / tracked) and pose error."""
+    headers = ["method", "clips"]
+    for m in modes:
+        headers += [f"{m}: success", f"{m}: tracked", f"{m}: gap closed (success / tracked)",
+                    f"{m}: pose error (mm / deg)"]  # fmt: skip
+    cells = []
+    for r in rows:
+        row = [r["method"], str(r["tracked"])]
+        for m in modes:
+            row += [
+                success_cell(r, m),
+                fmt(r[f"tracked_fraction_{m}"], ".3f"),
+                f"{fmt(r[f'gap_closed_success_{m}'], '.0%')} / {fmt(r[f'gap_closed_tracked_{m}'], '.0%')}",
+                f"{fmt(r[f'track_te_{m}_m'], '.2f', 1000)} / {fmt(r[f'track_re_{m}_deg'], '.2f')}",
+            ]
+        cells.append(row)
+    return headers, cells
+
+
+def breakdown_rows(breakdown: dict[str, Any], mode: str) -> tuple[list[str], list[list[str]]]:
+    """Headers and cells of one setting's failure breakdown: per cause the input's failures (that the clean
+    frames pass) and, per method, how many of them it rescues."""
+    b = breakdown.get(mode) or {}
+    labels = list(b.get("rescue") or {})
+    headers = ["cause", "failures"] + [f"rescued by {lab}" for lab in labels]
+    cells = []
+    for cause in CAUSES:
+        n = b["causes"][cause]
+        if not n:
+            continue
+        row = [cause, str(n)]
+        for lab in labels:
+            rate = b["rescue"][lab]["by_cause"][cause]
+            row.append(f"{round(rate * n)} ({fmt(rate, '.0%')})")
+        cells.append(row)
+    total = b.get("failures", 0)
+    row = ["all", str(total)]
+    for lab in labels:
+        res = b["rescue"][lab]
+        row.append(f"{res['rescued']} ({fmt(res['rate'], '.0%')})")
+    cells.append(row)
+    return headers, cells
+
+
+NO_FAILURES = "No frame fails on the input where the clean frames track."
+BRIGHTNESS_NOTE = (
+    "Tracking is reported with the tracker's per-frame affine brightness **fixed** (a = b = 0) first: that is "
+    "the paper's setting (RNNSLAM runs DSO with mode=2, so brightness is not optimised and every lighting change "
+    "is left for the enhancement to fix). **affine** fits e^-a (I - b) per frame (DSO mode=1): stronger, it "
+    "absorbs gain and exposure changes and so hides much of what a per-frame correction does."
+)
 
 
 def markdown_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
@@ -239,10 +347,17 @@ def clip_rows(result: EvaluationResult) -> list[dict[str, Any]]:
                     "bright_out": r.bright_out,
                     "psnr_in": r.psnr_in,
                     "psnr_out": r.psnr_out,
-                    "track_success": t.get("success"),
-                    "track_failed_at": t.get("failed_at"),
-                    "track_te_median_m": t.get("translation_error_m_median"),
-                    "track_re_median_deg": t.get("rotation_error_deg_median"),
+                    **{
+                        f"{key}_{m}": (t.get(m) or {}).get(field)
+                        for m in BRIGHTNESS_MODES
+                        for key, field in (
+                            ("track_success", "success"),
+                            ("tracked_fraction", "tracked_fraction"),
+                            ("track_failed_at", "failed_at"),
+                            ("track_te_median_m", "translation_error_m_median"),
+                            ("track_re_median_deg", "rotation_error_deg_median"),
+                        )
+                    },
                     "colmap_registered": cm.get("registered"),
                     "colmap_fraction": cm.get("fraction"),
                     **{f"ate_{k}_m": ate.get(k) for k in ("rmse", "mean", "median", "std", "min", "max")},
@@ -262,6 +377,7 @@ def markdown_report(result: EvaluationResult, rows: Sequence[dict[str, Any]]) ->
         markdown_table(headers, cells),
         "",
     ]
+    lines += _markdown_tracking(result, rows)
     if result.skipped_methods:
         lines += ["Skipped methods:", ""] + [f"- {k}: {v}" for k, v in result.skipped_methods.items()] + [""]
     if result.failures:
@@ -271,6 +387,21 @@ def markdown_report(result: EvaluationResult, rows: Sequence[dict[str, Any]]) ->
         lines += [""]
     lines += ["Definitions:", ""] + [f"- **{k}**: {v}" for k, v in DEFINITIONS]
     return "\n".join(lines) + "\n"
+
+
+def _markdown_tracking(result: EvaluationResult, rows: Sequence[dict[str, Any]]) -> list[str]:
+    modes = run_modes(result)
+    if not modes or not any(r["tracked"] for r in rows):
+        return []
+    headers, cells = tracking_rows(rows, modes)
+    lines = ["## Tracking", "", BRIGHTNESS_NOTE, "", markdown_table(headers, cells), ""]
+    breakdown = failure_breakdown(result)
+    for m in modes:
+        if breakdown.get(m):
+            h, c = breakdown_rows(breakdown, m)
+            lines += [f"### Why the input fails where the clean frames track (brightness {m})", "",
+                      markdown_table(h, c) if breakdown[m]["failures"] else NO_FAILURES, ""]  # fmt: skip
+    return lines
 
 
 # ------------------------------------------------------------------------------------------------------ plots
@@ -333,7 +464,13 @@ def bars_plot(result: EvaluationResult, rows: Sequence[dict[str, Any]]) -> str |
     colours = _colours(result.labels)
     panels: list[tuple[str, list[float], float | None]] = []
     if any(r["tracked"] for r in rows):
-        panels.append(("tracker success rate", [r["track_success_rate"] or 0.0 for r in rows], None))
+        for m in run_modes(result):
+            panels.append(
+                (f"tracker success rate ({m})", [r[f"track_success_rate_{m}"] or 0.0 for r in rows], None)
+            )
+            panels.append(
+                (f"tracked fraction ({m})", [r[f"tracked_fraction_{m}"] or 0.0 for r in rows], None)
+            )
     if any(r["colmap_clips"] for r in rows):
         panels.append(("COLMAP frames registered", [r["registered"] or 0.0 for r in rows], None))
     flick = [r["flicker_out"] if math.isfinite(r["flicker_out"]) else 0.0 for r in rows]
@@ -348,7 +485,7 @@ def bars_plot(result: EvaluationResult, rows: Sequence[dict[str, Any]]) -> str |
         ax.set_title(title, fontsize=9)
         if ref is not None and math.isfinite(ref):
             ax.axvline(ref, color="black", ls="--", lw=1)
-        if "rate" in title or "registered" in title:
+        if "rate" in title or "registered" in title or "fraction" in title:
             ax.set_xlim(0, 1)
     return _png(fig)
 
@@ -408,6 +545,17 @@ def html_report(
     if prov.get("command"):
         parts.append(f"<p><code>{e(str(prov['command']))}</code></p>")
     parts += ["<h2>Summary</h2>", _html_table(headers, cells)]
+    modes = run_modes(result)
+    if modes and any(r["tracked"] for r in rows):
+        th, tc = tracking_rows(rows, modes)
+        note = e(BRIGHTNESS_NOTE).replace("**fixed**", "<b>fixed</b>").replace("**affine**", "<b>affine</b>")
+        parts += ["<h2>Tracking</h2>", f"<p>{note}</p>", _html_table(th, tc)]
+        breakdown = failure_breakdown(result)
+        for m in modes:
+            if breakdown.get(m):
+                bh, bc = breakdown_rows(breakdown, m)
+                parts += [f"<h3>Why the input fails where the clean frames track (brightness {e(m)})</h3>",
+                          _html_table(bh, bc) if breakdown[m]["failures"] else f"<p>{e(NO_FAILURES)}</p>"]  # fmt: skip
     if result.skipped_methods:
         parts.append("<p class='bad'>Skipped methods:</p><ul>")
         parts += [f"<li>{e(k)}: {e(v)}</li>" for k, v in result.skipped_methods.items()]
@@ -483,10 +631,12 @@ def write_report(result: EvaluationResult, out_dir: Path, command: str | None = 
 
 __all__ = [
     "DEFINITIONS",
+    "breakdown_rows",
     "clean_json",
     "markdown_report",
     "provenance",
     "summarize",
     "table_rows",
+    "tracking_rows",
     "write_report",
 ]

@@ -1,5 +1,10 @@
 """Run methods on clips and measure them: lighting consistency, exposure, tracking, COLMAP, cost.
 
+Tracking runs once per brightness setting (``fixed``: the paper's, a = b = 0; ``affine``: fitted; see
+:mod:`.tracker`); COLMAP does not depend on it and runs once. Clips with clean frames also get three reference
+rows (:mod:`.oracles`): the clean frames themselves, ``oracle-curve`` and ``oracle-gamma``, and the frames the
+input fails while the clean frames pass are classified and checked for rescues (:mod:`.breakdown`).
+
 Per clip, what depends only on the input is computed once (content masks, the correspondences used for the
 motion-compensated SSIM, the input's scores); then every method streams the clip once, its enhanced frames
 are kept in memory (clips are short, at working size) and scored. One clip is in memory at a time.
@@ -14,7 +19,7 @@ import time
 import traceback
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -25,6 +30,7 @@ import numpy as np
 from ..errors import ColonlightError
 from ..methods import Method, available_methods, create_method
 from ..metrics import clip_lighting, content_masks, mean_luma
+from .breakdown import clip_failures, summarize_failures
 from .cache import ResultCache
 from .clips import DEFAULT_FPS, DEFAULT_MAX_SIZE, ClipRef, EvalClip
 from .colmap import APE_STATS, ColmapSettings, run_colmap
@@ -35,6 +41,13 @@ from .consistency import (
     flow_correspondences,
     motion_compensated_ssim,
 )
+from .oracles import CLEAN_LABEL, CURVE_LABEL, GAMMA_LABEL, REFERENCE_LABELS, oracle_frames
+from .tracker import BRIGHTNESS_MODES, TrackerSettings
+
+#: The label of the unenhanced input (the ``none`` method), against which gaps are measured.
+INPUT_NAME = "none"
+#: Why the reference rows are absent when no clip has clean frames.
+NO_CLEAN_REASON = "no clip has clean frames (synthetic clips, or clean frames of your own)"
 
 #: The benchmark's methods, in table order.
 DEFAULT_METHODS = ("none", "he", "clahe", "deflicker", "zerodce", "zerodce++", "rnn")
@@ -85,7 +98,7 @@ def missing_extras(colmap: bool = True) -> list[str]:
     """Distributions of the ``eval`` extra this evaluation needs that are not installed."""
     import importlib.util
 
-    needed = {"skimage": "scikit-image", "matplotlib": "matplotlib"}
+    needed = {"skimage": "scikit-image", "matplotlib": "matplotlib", "scipy": "scipy"}
     if colmap:
         needed.update(pycolmap="pycolmap", evo="evo")
     return [dist for module, dist in needed.items() if importlib.util.find_spec(module) is None]
@@ -128,7 +141,7 @@ class MethodClipResult:
     luma_out: list[float] = field(default_factory=list)
     ssim_series: list[float] = field(default_factory=list)
     gammas: list[float | None] | None = None
-    tracking: dict[str, Any] | None = None
+    tracking: dict[str, dict[str, Any]] | None = None  # brightness setting ("fixed", "affine") -> result
     colmap: dict[str, Any] | None = None
     error: str | None = None
     detail: str | None = None  # traceback of an unexpected error
@@ -149,6 +162,8 @@ class ClipRecord:
     luma_in: list[float]
     ssim_in_series: list[float]
     results: dict[str, MethodClipResult] = field(default_factory=dict)
+    # frames the input fails and the clean frames pass (see colonlight.evaluation.breakdown)
+    input_failures: list[dict[str, Any]] = field(default_factory=list)
 
 
 @dataclass
@@ -181,6 +196,7 @@ class EvaluationResult:
             "skipped_methods": self.skipped_methods,
             "settings": self.settings,
             "summary": summarize(self),
+            "failure_breakdown": failure_breakdown(self),
             "clips": [
                 {
                     **{k: v for k, v in asdict(c).items() if k != "results"},
@@ -227,20 +243,27 @@ def _nanmedian(values: Iterable[float | None]) -> float | None:
     return float(np.median(v)) if v.size else None
 
 
-def _track(clip: EvalClip, frames: list[np.ndarray], settings: Any) -> dict[str, Any]:
+NO_DEPTH_REASON = "no depth: tracking needs a synthetic clip's known depth"
+
+
+def _track(clip: EvalClip, frames: list[np.ndarray], settings: TrackerSettings) -> dict[str, Any]:
     """Track the enhanced frames with known depth; per-clip pose errors are medians over frames 1.. (a diverged
-    track's errors are astronomically large, so a mean would say nothing), maxima flag the worst frame."""
-    if not clip.synthetic:
-        return {"applicable": False, "reason": "no depth: tracking needs a synthetic clip's known depth"}
-    from .tracker import TrackerSettings, track_clip
+    track's errors are astronomically large, so a mean would say nothing), maxima flag the worst frame.
+    ``tracked_fraction``: the fraction of frames 1.. that did not fail; ``frame_ok`` and ``keyframe_of`` per
+    frame feed the failure breakdown."""
+    from .tracker import track_clip
 
     assert clip.depths is not None and clip.K is not None
     t0 = time.perf_counter()
     with np.errstate(all="ignore"):  # a diverging track overflows; that is a result (failure), not a warning
-        res = track_clip(frames, clip.depths, clip.K, clip.poses, settings or TrackerSettings())
+        res = track_clip(frames, clip.depths, clip.K, clip.poses, settings)
     out: dict[str, Any] = {
         "applicable": True,
+        "brightness": settings.brightness,
         "success": bool(res.success),
+        "tracked_fraction": float(np.mean(res.frame_ok[1:])) if len(res.frame_ok) > 1 else 1.0,
+        "frame_ok": [bool(x) for x in res.frame_ok],
+        "keyframe_of": [int(x) for x in res.keyframe_of],
         "failed_at": res.failed_at,
         "failure_reason": res.failure_reason,
         "seconds": time.perf_counter() - t0,
@@ -319,6 +342,86 @@ def _run_method(
     return out, gammas, ms, cpu_ms
 
 
+@dataclass
+class _ClipContext:
+    """What scoring any frames of one clip needs, computed once from the input."""
+
+    clip: EvalClip
+    masks: list[np.ndarray]
+    corrs: list[Correspondence]
+    ssim_in: list[float]
+    dark_in: float
+    bright_in: float
+    modes: tuple[str, ...]
+    colmap: bool
+    tracker: bool
+    colmap_settings: ColmapSettings
+    tracker_settings: TrackerSettings
+    cache: ResultCache | None
+
+
+def _score(
+    ctx: _ClipContext, label: str, out: list[np.ndarray], gammas: list[float | None], ms: float, cpu_ms: float
+) -> MethodClipResult:
+    """Every score of one method's frames on the clip (tracking once per brightness setting, COLMAP once)."""
+    clip = ctx.clip
+    r = MethodClipResult(clip=clip.name, method=label, frames=len(clip.frames))
+    r.ms_per_frame, r.cpu_ms_per_frame = ms, cpu_ms
+    light = clip_lighting(clip.frames, out, clip.clean, masks=ctx.masks)
+    r.flicker_in, r.flicker_out = light.flicker_in, light.flicker_out
+    r.mean_luma_in, r.mean_luma_out = light.mean_luma_in, light.mean_luma_out
+    r.psnr_in, r.psnr_out = light.psnr_in, light.psnr_out
+    r.luma_out = [float(x) for x in mean_luma(out, ctx.masks)]
+    r.gammas = gammas if any(g is not None for g in gammas) else None
+    series = motion_compensated_ssim(out, ctx.corrs, ctx.masks)
+    r.ssim_series = [float(x) for x in series]
+    r.ssim_in, r.ssim_out = _nanmean(ctx.ssim_in), _nanmean(series)
+    r.dark_in, r.bright_in = ctx.dark_in, ctx.bright_in
+    r.dark_out, r.bright_out = exposure_fractions(out, ctx.masks)
+    truth = [clip.K, *(clip.poses or []), *(clip.depths or [])]
+    if ctx.tracker:
+        r.tracking = {}
+        for mode in ctx.modes:
+            if not clip.synthetic:
+                r.tracking[mode] = {"applicable": False, "reason": NO_DEPTH_REASON}
+                continue
+            settings = replace(ctx.tracker_settings, brightness=mode)
+            r.tracking[mode] = _scored(
+                ctx.cache, "tracker", [*out, *truth], {"settings": asdict(settings)},
+                partial(_track, clip, out, settings),
+            )  # fmt: skip
+    if ctx.colmap:  # COLMAP does not depend on the tracker's brightness setting: once per method
+        r.colmap = _scored(
+            ctx.cache, "colmap", [*out, *truth], {"settings": asdict(ctx.colmap_settings), "fps": clip.fps},
+            partial(_colmap, clip, out, ctx.colmap_settings),
+        )  # fmt: skip
+    return r
+
+
+def _reference_frames(
+    clip: EvalClip, label: str
+) -> tuple[list[np.ndarray], list[float | None], float, float]:
+    """The clean frames, or an oracle's corrected frames, with their gammas and cost (ms/frame wall, CPU)."""
+    assert clip.clean is not None
+    c0, t0 = time.process_time(), time.perf_counter()
+    if label == CLEAN_LABEL:
+        out, gammas = list(clip.clean), [None] * len(clip.clean)
+    else:
+        out, gammas = oracle_frames(clip.frames, clip.clean, label)
+    n = max(1, len(clip.frames))
+    return out, gammas, 1000.0 * (time.perf_counter() - t0) / n, 1000.0 * (time.process_time() - c0) / n
+
+
+def _errored(clip: EvalClip, label: str, exc: Exception) -> MethodClipResult:
+    r = MethodClipResult(clip=clip.name, method=label, frames=len(clip.frames))
+    if isinstance(exc, ColonlightError):
+        r.error = str(exc)
+    else:
+        r.error = f"{label} failed: {type(exc).__name__}: {exc}".splitlines()[0]
+        r.detail = traceback.format_exc()
+    return r
+
+
 def evaluate_clip(
     clip: EvalClip,
     methods: Sequence[tuple[EvalMethod, Method]],
@@ -326,20 +429,29 @@ def evaluate_clip(
     colmap: bool = True,
     tracker: bool = True,
     colmap_settings: ColmapSettings | None = None,
-    tracker_settings: Any = None,
+    tracker_settings: TrackerSettings | None = None,
+    brightness: Sequence[str] = BRIGHTNESS_MODES,
+    oracles: bool = True,
     keep_strip: bool = False,
     progress: Progress | None = None,
     cache: ResultCache | None = None,
 ) -> tuple[ClipRecord, dict[str, list[np.ndarray]]]:
     """Score every method on one loaded clip; returns its record and (if ``keep_strip``) frame thumbnails.
 
-    ``cache``: reuse tracking and COLMAP results of byte-identical frames (see :mod:`.cache`)."""
-    colmap_settings = colmap_settings or ColmapSettings()
+    ``brightness``: the tracker's brightness settings to track in (``tracker_settings.brightness`` is replaced
+    by each). ``oracles``: when the clip has clean frames, add the reference rows (clean, oracle-curve,
+    oracle-gamma) before the methods and the breakdown of the input's failures. ``cache``: reuse tracking and
+    COLMAP results of byte-identical frames (see :mod:`.cache`)."""
+    modes = _modes(brightness)
     masks = content_masks(clip.frames)
     kind, corrs = _correspondences(clip)
     lum_in = mean_luma(clip.frames, masks)
     ssim_in = motion_compensated_ssim(clip.frames, corrs, masks)
     dark_in, bright_in = exposure_fractions(clip.frames, masks)
+    ctx = _ClipContext(
+        clip, masks, corrs, [float(x) for x in ssim_in], dark_in, bright_in, modes, colmap, tracker,
+        colmap_settings or ColmapSettings(), tracker_settings or TrackerSettings(), cache,
+    )  # fmt: skip
     record = ClipRecord(
         name=clip.name,
         info=clip.describe(),
@@ -352,43 +464,58 @@ def evaluate_clip(
     strips: dict[str, list[np.ndarray]] = (
         {"input": [_thumb(clip.frames[i]) for i in idx]} if keep_strip else {}
     )
-    for spec, method in methods:
-        r = MethodClipResult(clip=clip.name, method=spec.label, frames=len(clip.frames))
+    references = REFERENCE_LABELS if oracles and clip.clean is not None else ()
+    for label in references:
         try:
-            out, gammas, r.ms_per_frame, r.cpu_ms_per_frame = _run_method(method, clip.frames)
-            light = clip_lighting(clip.frames, out, clip.clean, masks=masks)
-            r.flicker_in, r.flicker_out = light.flicker_in, light.flicker_out
-            r.mean_luma_in, r.mean_luma_out = light.mean_luma_in, light.mean_luma_out
-            r.psnr_in, r.psnr_out = light.psnr_in, light.psnr_out
-            r.luma_out = [float(x) for x in mean_luma(out, masks)]
-            r.gammas = gammas if any(g is not None for g in gammas) else None
-            series = motion_compensated_ssim(out, corrs, masks)
-            r.ssim_series = [float(x) for x in series]
-            r.ssim_in, r.ssim_out = _nanmean(ssim_in), _nanmean(series)
-            r.dark_in, r.bright_in = dark_in, bright_in
-            r.dark_out, r.bright_out = exposure_fractions(out, masks)
-            truth = [clip.K, *(clip.poses or []), *(clip.depths or [])]
-            if tracker:
-                r.tracking = _scored(
-                    cache, "tracker", [*out, *truth], {"settings": asdict(tracker_settings) if tracker_settings else None},
-                    partial(_track, clip, out, tracker_settings),
-                )  # fmt: skip
-            if colmap:
-                r.colmap = _scored(
-                    cache, "colmap", [*out, *truth], {"settings": asdict(colmap_settings), "fps": clip.fps},
-                    partial(_colmap, clip, out, colmap_settings),
-                )  # fmt: skip
-            if keep_strip and spec.name != "none":  # the input's row already shows it
-                strips[spec.label] = [_thumb(out[i]) for i in idx]
-        except ColonlightError as exc:
-            r.error = str(exc)
-        except Exception as exc:  # noqa: BLE001 - one method's bug must not lose the other results
-            r.error = f"{spec.label} failed: {type(exc).__name__}: {exc}".splitlines()[0]
-            r.detail = traceback.format_exc()
-        record.results[spec.label] = r
+            out, gammas, ms, cpu_ms = _reference_frames(clip, label)
+            record.results[label] = _score(ctx, label, out, gammas, ms, cpu_ms)
+            if keep_strip and label == CLEAN_LABEL:
+                strips[label] = [_thumb(out[i]) for i in idx]
+        except Exception as exc:  # noqa: BLE001 - a reference row's bug must not lose the methods' results
+            record.results[label] = _errored(clip, label, exc)
         if progress:
-            progress("method", {"clip": clip.name, "method": spec.label, "error": r.error})
+            progress("method", {"clip": clip.name, "method": label, "error": record.results[label].error})
+    for spec, method in methods:
+        try:
+            out, gammas, ms, cpu_ms = _run_method(method, clip.frames)
+            record.results[spec.label] = _score(ctx, spec.label, out, gammas, ms, cpu_ms)
+            if keep_strip and spec.name != INPUT_NAME:  # the input's row already shows it
+                strips[spec.label] = [_thumb(out[i]) for i in idx]
+        except Exception as exc:  # noqa: BLE001 - one method's bug must not lose the other results
+            record.results[spec.label] = _errored(clip, spec.label, exc)
+        if progress:
+            progress(
+                "method", {"clip": clip.name, "method": spec.label, "error": record.results[spec.label].error}
+            )
+    input_label = next((spec.label for spec, _ in methods if spec.name == INPUT_NAME), None)
+    if references and tracker and input_label is not None and clip.synthetic:
+        assert clip.clean is not None
+        tracks = {label: r.tracking for label, r in record.results.items() if r.tracking and not r.error}
+        record.input_failures = clip_failures(
+            clip.frames,
+            clip.clean,
+            clip.lighting,
+            tracks,
+            input_label,
+            CLEAN_LABEL,
+            clip.meta.get("camera_gamma"),
+        )
     return record, strips
+
+
+def _modes(brightness: Sequence[str] | str) -> tuple[str, ...]:
+    """The brightness settings in table order (fixed first: the paper's); ``both`` means all."""
+    wanted = (
+        BRIGHTNESS_MODES
+        if brightness == "both"
+        else tuple(dict.fromkeys([brightness] if isinstance(brightness, str) else brightness))
+    )
+    bad = [m for m in wanted if m not in BRIGHTNESS_MODES]
+    if bad or not wanted:
+        raise ValueError(
+            f"unknown brightness setting {', '.join(bad) or '(none)'}; choose fixed, affine or both"
+        )
+    return tuple(m for m in BRIGHTNESS_MODES if m in wanted)
 
 
 def _scored(
@@ -435,7 +562,9 @@ def evaluate_clips(
     fps: float = DEFAULT_FPS,
     max_frames: int | None = None,
     colmap_settings: ColmapSettings | None = None,
-    tracker_settings: Any = None,
+    tracker_settings: TrackerSettings | None = None,
+    brightness: Sequence[str] | str = BRIGHTNESS_MODES,
+    oracles: bool = True,
     strips: int = 3,
     threads: int | None = 1,
     progress: Progress | None = None,
@@ -446,7 +575,10 @@ def evaluate_clips(
     ``cache_dir``: keep tracking and COLMAP results there and reuse them for byte-identical frames, so a re-run
     (another method added, an interrupted run finished) computes only what is new.
     ``strips``: how many clips keep before/after thumbnails for the report. ``tracker_settings``: a
-    :class:`colonlight.evaluation.tracker.TrackerSettings` (default thresholds when ``None``). ``threads``:
+    :class:`colonlight.evaluation.tracker.TrackerSettings` (default thresholds when ``None``); ``brightness``:
+    the settings tracked in (``"both"``, or any of ``fixed``/``affine``). ``oracles``: reference rows (clean,
+    oracle-curve, oracle-gamma) on clips with clean frames; without any such clip they are listed as skipped
+    with the reason. ``threads``:
     torch and OpenCV threads while evaluating (restored afterwards; ``None`` leaves them). One by default, so
     that every method's cost is measured alike and OpenMP spinning on a busy machine does not inflate it
     (the 64-px network took 270 ms/frame with 2 threads beside other jobs, 12 ms with one).
@@ -454,9 +586,32 @@ def evaluate_clips(
     with _threads(threads):
         return _evaluate_clips(
             clips, methods, colmap=colmap, tracker=tracker, max_size=max_size, fps=fps, max_frames=max_frames,
-            colmap_settings=colmap_settings, tracker_settings=tracker_settings, strips=strips, threads=threads,
-            progress=progress, cache=ResultCache(cache_dir) if cache_dir is not None else None,
+            colmap_settings=colmap_settings, tracker_settings=tracker_settings, brightness=_modes(brightness),
+            oracles=oracles, strips=strips, threads=threads, progress=progress,
+            cache=ResultCache(cache_dir) if cache_dir is not None else None,
         )  # fmt: skip
+
+
+def _reference_descriptions() -> list[dict[str, Any]]:
+    """The reference rows as ``EvaluationResult.methods`` entries (table order: clean, oracle-curve, gamma)."""
+    from ..methods.rnn import GAMMA_MAX, GAMMA_MIN
+
+    what = {
+        CLEAN_LABEL: "the clean frames themselves (no lighting disturbance)",
+        CURVE_LABEL: "per frame, the least-squares monotone 256-entry tone curve mapping input to clean",
+        GAMMA_LABEL: "per frame, the least-squares gamma (product's LUT) mapping input to clean",
+    }
+    return [
+        {
+            "label": label,
+            "name": label,
+            "options": {},
+            "parameters": {"reference": True, "description": what[label]}
+            | ({"gamma_range": [GAMMA_MIN, GAMMA_MAX]} if label == GAMMA_LABEL else {}),
+            "model": None,
+        }
+        for label in REFERENCE_LABELS
+    ]
 
 
 @contextmanager
@@ -486,7 +641,9 @@ def _evaluate_clips(
     fps: float,
     max_frames: int | None,
     colmap_settings: ColmapSettings | None,
-    tracker_settings: Any,
+    tracker_settings: TrackerSettings | None,
+    brightness: tuple[str, ...],
+    oracles: bool,
     strips: int,
     threads: int | None,
     progress: Progress | None,
@@ -495,10 +652,7 @@ def _evaluate_clips(
     t0 = time.perf_counter()
     colmap_settings = colmap_settings or ColmapSettings()
     built, skipped, described = build_methods(methods)
-    if tracker and tracker_settings is None:
-        from .tracker import TrackerSettings
-
-        tracker_settings = TrackerSettings()
+    tracker_settings = tracker_settings or TrackerSettings()
     result = EvaluationResult(methods=described, skipped_methods=skipped)
     result.settings = {
         "max_size": max_size,
@@ -506,7 +660,12 @@ def _evaluate_clips(
         "max_frames": max_frames,
         "threads": threads,
         "colmap": asdict(colmap_settings) if colmap else None,
-        "tracker": asdict(tracker_settings) if tracker and tracker_settings is not None else None,
+        # the brightness setting is replaced by each of "brightness" below
+        "tracker": {k: v for k, v in asdict(tracker_settings).items() if k != "brightness"}
+        if tracker
+        else None,
+        "brightness": list(brightness) if tracker else [],
+        "oracles": oracles,
         "dark_threshold": 0.1,
         "bright_threshold": 0.95,
     }
@@ -538,6 +697,8 @@ def _evaluate_clips(
             tracker=tracker,
             colmap_settings=colmap_settings,
             tracker_settings=tracker_settings,
+            brightness=brightness,
+            oracles=oracles,
             keep_strip=keep,
             progress=progress,
             cache=cache,
@@ -548,9 +709,21 @@ def _evaluate_clips(
             result.strip_frames[clip.name] = _strip_indices(len(clip.frames))
         if progress:
             progress("done", {"clip": name, "record": record})
+    if oracles:
+        if any(label in c.results for c in result.clips for label in REFERENCE_LABELS):
+            result.methods = _reference_descriptions() + result.methods
+        else:
+            for label in REFERENCE_LABELS:
+                result.skipped_methods[label] = NO_CLEAN_REASON
+            if progress:
+                progress("skipped", {"method": ", ".join(REFERENCE_LABELS), "error": NO_CLEAN_REASON})
     result.seconds = time.perf_counter() - t0
     if cache is not None:
-        result.settings["cache"] = {"folder": str(cache.folder), "reused": cache.hits, "computed": cache.misses}
+        result.settings["cache"] = {
+            "folder": str(cache.folder),
+            "reused": cache.hits,
+            "computed": cache.misses,
+        }
     return result
 
 
@@ -560,17 +733,24 @@ def _evaluate_clips(
 def summarize(result: EvaluationResult) -> list[dict[str, Any]]:
     """One row per evaluated method: means over the clips it ran on (see the report for definitions).
 
-    Tracking: a clip counts when tracking applied (known depth); success rate = successful / tracked; pose
-    errors are the median over tracked clips of each clip's median frame error (robust to diverged tracks), and
-    the mean over clips of each clip's mean error over the frames before its first failure. COLMAP:
-    ``registered`` is the mean over clips of the fraction of frames registered; ATE statistics are means over
-    the clips where an ATE exists (at least 3 registered frames), in metres.
+    Tracking, per brightness setting ``m`` (``fixed``, ``affine``; fields of a setting not run are None): a clip
+    counts when tracking applied (known depth); ``track_success_m`` clips tracked with no failing frame,
+    ``track_success_rate_m`` that over ``tracked``; ``tracked_fraction_m`` the mean over clips of the fraction
+    of frames 1.. within the thresholds; pose errors are the median over tracked clips of each clip's median
+    frame error (robust to diverged tracks), and the mean over clips of each clip's mean error over the frames
+    before its first failure. ``gap_closed_success_m`` / ``gap_closed_tracked_m``: the fraction of the input ->
+    oracle-curve gap closed, (method - input) / (oracle-curve - input) over the clips all three ran on (None
+    without an input row, an oracle-curve row or a gap). ``rescued_m`` / ``rescue_rate_m``: of the frames the
+    input fails and the clean frames pass, those this method passes. COLMAP: ``registered`` is the mean over
+    clips of the fraction of frames registered; ATE statistics are means over the clips where an ATE exists
+    (at least 3 registered frames), in metres.
     """
+    modes = tuple(result.settings.get("brightness") or BRIGHTNESS_MODES)
+    breakdown = failure_breakdown(result)
     rows = []
     for label in result.labels:
         rs = [c.results[label] for c in result.clips if label in c.results and not c.results[label].error]
         frames = sum(r.frames for r in rs)
-        tracked = [r.tracking for r in rs if r.tracking and r.tracking.get("applicable")]
         cms = [r.colmap for r in rs if r.colmap is not None]
         ates = [c["ate"] for c in cms if c.get("ate")]
         row: dict[str, Any] = {
@@ -592,23 +772,103 @@ def summarize(result: EvaluationResult) -> list[dict[str, Any]]:
             "bright_out": _nanmean(r.bright_out for r in rs),
             "psnr_in": _nanmean(r.psnr_in for r in rs),
             "psnr_out": _nanmean(r.psnr_out for r in rs),
-            "tracked": len(tracked),
-            "track_success": sum(1 for t in tracked if t["success"]),
-            "track_success_rate": (sum(1 for t in tracked if t["success"]) / len(tracked))
-            if tracked
-            else None,
-            "track_te_m": _nanmedian(t.get("translation_error_m_median") for t in tracked),
-            "track_re_deg": _nanmedian(t.get("rotation_error_deg_median") for t in tracked),
-            "track_te_mean_tracked_m": _nanmean(t.get("translation_error_m_mean_tracked") for t in tracked),
-            "track_re_mean_tracked_deg": _nanmean(t.get("rotation_error_deg_mean_tracked") for t in tracked),
-            "colmap_clips": len(cms),
-            "registered": _nanmean(c["fraction"] for c in cms) if cms else None,
-            "ate_clips": len(ates),
+            "tracked": max((len(_tracks(rs, m)) for m in modes), default=0),
         }
+        for m in BRIGHTNESS_MODES:
+            row.update(
+                _tracking_fields(result, label, rs, m, breakdown.get(m) if m in modes else None, m in modes)
+            )
+        row.update(
+            colmap_clips=len(cms),
+            registered=_nanmean(c["fraction"] for c in cms) if cms else None,
+            ate_clips=len(ates),
+        )
         for k in APE_STATS:
             row[f"ate_{k}_m"] = _nanmean(a[k] for a in ates) if ates else None
         rows.append(row)
     return rows
+
+
+def _tracks(rs: Sequence[MethodClipResult], mode: str) -> list[dict[str, Any]]:
+    return [t for r in rs if r.tracking and (t := r.tracking.get(mode)) and t.get("applicable")]
+
+
+def _tracking_fields(
+    result: EvaluationResult,
+    label: str,
+    rs: Sequence[MethodClipResult],
+    mode: str,
+    breakdown: dict[str, Any] | None,
+    ran: bool,
+) -> dict[str, Any]:
+    """The tracking columns of one method in one brightness setting (all None when it was not run)."""
+    tracked = _tracks(rs, mode) if ran else []
+    n_ok = sum(1 for t in tracked if t["success"])
+    rescue = (breakdown or {}).get("rescue", {}).get(label) or {}
+    return {
+        f"track_success_{mode}": n_ok if ran else None,
+        f"track_success_rate_{mode}": n_ok / len(tracked) if tracked else None,
+        f"tracked_fraction_{mode}": _nanmean(t.get("tracked_fraction") for t in tracked) if tracked else None,
+        f"gap_closed_success_{mode}": _gap_closed(result, label, mode, "success") if ran else None,
+        f"gap_closed_tracked_{mode}": _gap_closed(result, label, mode, "tracked_fraction") if ran else None,
+        f"rescued_{mode}": rescue.get("rescued"),
+        f"rescue_rate_{mode}": rescue.get("rate"),
+        f"track_te_{mode}_m": _nanmedian(t.get("translation_error_m_median") for t in tracked),
+        f"track_re_{mode}_deg": _nanmedian(t.get("rotation_error_deg_median") for t in tracked),
+        f"track_te_mean_tracked_{mode}_m": _nanmean(
+            t.get("translation_error_m_mean_tracked") for t in tracked
+        )
+        if tracked
+        else None,
+        f"track_re_mean_tracked_{mode}_deg": _nanmean(
+            t.get("rotation_error_deg_mean_tracked") for t in tracked
+        )
+        if tracked
+        else None,
+    }
+
+
+def input_label(result: EvaluationResult) -> str | None:
+    """The label of the unenhanced input's row (the ``none`` method), if it was evaluated."""
+    return next((m["label"] for m in result.methods if m["name"] == INPUT_NAME), None)
+
+
+def _gap_closed(result: EvaluationResult, label: str, mode: str, key: str) -> float | None:
+    """(method - input) / (oracle-curve - input) of the clip mean of ``key`` over the clips all three tracked."""
+    base = input_label(result)
+    if base is None or CURVE_LABEL not in result.labels:
+        return None
+    values: dict[str, list[float]] = {label: [], base: [], CURVE_LABEL: []}
+    for c in result.clips:
+        got = {}
+        for lab in values:
+            r = c.results.get(lab)
+            t = (r.tracking or {}).get(mode) if r is not None and not r.error else None
+            if not t or not t.get("applicable"):
+                break
+            got[lab] = float(t[key])
+        else:
+            for lab, v in got.items():
+                values[lab].append(v)
+    if not values[base]:
+        return None
+    x, x_in, x_top = (float(np.mean(values[lab])) for lab in (label, base, CURVE_LABEL))
+    gap = x_top - x_in
+    return (x - x_in) / gap if gap > 1e-9 else None
+
+
+def failure_breakdown(result: EvaluationResult) -> dict[str, Any]:
+    """Per brightness setting, the frames the input fails and the clean frames pass: counts per cause and each
+    method's rescues (see :mod:`.breakdown`); empty without clips that have clean frames and an input row."""
+    per_clip = [c.input_failures for c in result.clips]
+    if not any(c.input_failures for c in result.clips) and not any(
+        CLEAN_LABEL in c.results for c in result.clips
+    ):
+        return {}
+    base = input_label(result)
+    labels = [lab for lab in result.labels if lab not in (base, CLEAN_LABEL)]
+    modes = tuple(result.settings.get("brightness") or BRIGHTNESS_MODES)
+    return summarize_failures(per_clip, labels, modes)
 
 
 __all__ = [
@@ -620,6 +880,8 @@ __all__ = [
     "build_methods",
     "evaluate_clip",
     "evaluate_clips",
+    "failure_breakdown",
+    "input_label",
     "method_list",
     "missing_extras",
     "require_extras",

@@ -14,7 +14,11 @@ Model
     i.e. DSO's per-frame affine brightness: frame j is modelled as I_j = e^{a} I_k + b, and e^{-a}(I_j - b)
     brings it back to the keyframe's scale, so r (and the Huber/outlier thresholds) are in keyframe grey
     levels. Unknowns: T_jk (keyframe camera -> frame camera, left-multiplied SE(3) increments) and (a, b),
-    8 in all, with weak priors pulling a and b to 0. Levenberg-Marquardt (Gauss-Newton with Marquardt
+    8 in all, with weak priors pulling a and b to 0 (``brightness="affine"``: DSO's ``mode=1``). With
+    ``brightness="fixed"`` (DSO's ``mode=2``, "photometric mode with perfect images",
+    ``setting_affineOptModeA/B = -1``, which RNNSLAM and so the paper's numbers used) a = b = 0 are not
+    optimised and only the 6 pose unknowns are solved: every brightness change between keyframe and frame
+    is then a residual, as it is for a tracker that trusts the images. Levenberg-Marquardt (Gauss-Newton with Marquardt
     damping) with Huber IRLS weights (threshold 9); residuals beyond 20 are outliers with a constant cost
     and no weight, and points leaving the image cost the same, so pushing points out of view never pays
     (the cutoff doubles while fewer than half the points are inliers, as in DSO). Coarse to fine over a
@@ -86,6 +90,9 @@ import numpy as np
 
 from . import se3
 
+#: Per-frame affine brightness: "fixed" (a = b = 0, the paper's RNNSLAM setting) or "affine" (fitted).
+BRIGHTNESS_MODES = ("fixed", "affine")
+
 
 @dataclass(frozen=True)
 class TrackerSettings:
@@ -120,8 +127,13 @@ class TrackerSettings:
     max_translation_error_m: float = 0.002
     relative_translation_error: float = 0.25
     max_rotation_error_deg: float = 3.0
+    brightness: str = "affine"  # "affine": fit (a, b) per frame (DSO mode=1); "fixed": a = b = 0 (DSO mode=2)
 
     def __post_init__(self) -> None:
+        if self.brightness not in BRIGHTNESS_MODES:
+            raise ValueError(
+                f"TrackerSettings.brightness must be one of {', '.join(BRIGHTNESS_MODES)}, got {self.brightness!r}"
+            )
         positive = ("levels", "min_level_size", "n_points", "min_level_points", "region_size", "huber")
         for name in positive + ("max_iterations", "keyframe_interval", "min_points"):
             if not getattr(self, name) > 0:
@@ -145,7 +157,8 @@ class TrackResult:
     iteration limit (False for lost frames). ``valid_fraction``: keyframe points that projected into the
     frame. ``keyframe_of``: the keyframe each frame was tracked against; ``keyframes``: the keyframe
     indices. Error arrays are None without ground truth; ``failure_reason`` says why ``failed_at`` failed
-    (see the module docstring for both).
+    (see the module docstring for both). ``frame_ok``: per frame, True unless it failed (lost, or over the
+    error thresholds; frame 0 is True), so ``frame_ok[1:].mean()`` is the tracked fraction.
     """
 
     poses: list[np.ndarray]
@@ -162,6 +175,7 @@ class TrackResult:
     success: bool
     failed_at: int | None
     failure_reason: str | None
+    frame_ok: np.ndarray
 
 
 # ----------------------------------------------------------------------------------------------- pyramid
@@ -326,7 +340,8 @@ def _outlier_cost(k: float, cutoff: float) -> float:
 def _evaluate(
     pts: _Points, level: _Level, T: np.ndarray, a: float, b: float, cutoff: float, s: TrackerSettings
 ) -> _Eval:
-    """Residuals, Huber weights and the 8x8 normal equations at (T, a, b) for one level."""
+    """Residuals, Huber weights and the normal equations at (T, a, b) for one level: 8x8 when brightness is
+    fitted, 6x6 (pose only) when it is fixed."""
     n = len(pts.intensity)
     h, w = level.shape
     K = level.K
@@ -340,9 +355,11 @@ def _evaluate(
     u, v, x, y, iz, ref = u[inside], v[inside], x[inside], y[inside], iz[inside], pts.intensity[inside]
     m = len(ref)
     out_cost = (n - m) * _outlier_cost(s.huber, cutoff)
-    prior = 0.5 * (s.prior_a * a * a + s.prior_b * b * b)
-    Hp = np.diag([0, 0, 0, 0, 0, 0, s.prior_a, s.prior_b]).astype(np.float64)
-    gp = np.array([0, 0, 0, 0, 0, 0, s.prior_a * a, s.prior_b * b])
+    fit = s.brightness == "affine"
+    nu = 8 if fit else 6
+    prior = 0.5 * (s.prior_a * a * a + s.prior_b * b * b) if fit else 0.0
+    Hp = np.diag([0, 0, 0, 0, 0, 0, s.prior_a, s.prior_b][:nu]).astype(np.float64)
+    gp = np.array([0, 0, 0, 0, 0, 0, s.prior_a * a, s.prior_b * b][:nu], dtype=np.float64)
     if m == 0:
         return _Eval(out_cost / max(n, 1) + prior, Hp, gp, 0, 0, float("nan"))
     u0, v0 = np.floor(u), np.floor(v)
@@ -356,14 +373,15 @@ def _evaluate(
     cur = smp[:, 0] - b
     r = ea * cur - ref
     gu, gv = ea * K[0, 0] * smp[:, 1], ea * K[1, 1] * smp[:, 2]
-    J = np.empty((m, 8))
+    J = np.empty((m, nu))
     J[:, 0], J[:, 1] = gu * iz, gv * iz
     J[:, 2] = -(gu * x + gv * y) * iz
     J[:, 3] = -gu * x * y - gv * (1.0 + y * y)
     J[:, 4] = gu * (1.0 + x * x) + gv * x * y
     J[:, 5] = gv * x - gu * y
-    J[:, 6] = -ea * cur
-    J[:, 7] = -ea
+    if fit:
+        J[:, 6] = -ea * cur
+        J[:, 7] = -ea
     wts, cost = _robust(r, s.huber, cutoff)
     Jw = J * wts[:, None]
     H = (Jw.T @ J) / n + Hp
@@ -381,7 +399,10 @@ class _Estimate:
 
 
 def _update(est: _Estimate, delta: np.ndarray) -> _Estimate:
+    """Apply an LM step: 6 pose increments, and 2 brightness ones when brightness is fitted."""
     T = se3.orthonormalize(se3.exp(delta[:6]) @ est.T)
+    if len(delta) < 8:
+        return _Estimate(T, est.a, est.b)
     return _Estimate(T, est.a + float(delta[6]), est.b + float(delta[7]))
 
 
@@ -402,7 +423,7 @@ def _optimise(
         cur = _evaluate(pts, level, est.T, est.a, est.b, cutoff, s)
     lam = 1e-3
     for _ in range(s.max_iterations):
-        A = cur.H + lam * np.diag(np.diag(cur.H)) + 1e-12 * np.eye(8)
+        A = cur.H + lam * np.diag(np.diag(cur.H)) + 1e-12 * np.eye(len(cur.g))
         try:
             delta = -np.linalg.solve(A, cur.g)
         except np.linalg.LinAlgError:
@@ -632,6 +653,8 @@ def _result(
                 int(j), f"pose error {t_rel[j] * 1000:.2f} mm / {r_rel[j]:.2f} deg over the threshold"
             )
     failed_at = min(failures) if failures else None
+    frame_ok = np.ones(len(poses), dtype=bool)
+    frame_ok[list(failures)] = False
     return TrackResult(
         poses=poses,
         affine=affine,
@@ -647,6 +670,7 @@ def _result(
         success=failed_at is None,
         failed_at=failed_at,
         failure_reason=failures[failed_at] if failed_at is not None else None,
+        frame_ok=frame_ok,
     )
 
 
