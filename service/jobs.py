@@ -26,6 +26,7 @@ import math
 import os
 import secrets
 import shutil
+import sqlite3
 import threading
 import time
 from collections.abc import Iterator
@@ -47,7 +48,7 @@ from .errors import ApiError, is_disk_full, storage_full
 from .header_probe import declared_frame_size
 from .memory import release_free_memory
 from .metrics import Metrics
-from .runners import DISK_FULL, ClipHooks, ClipRunner, ClusterRunner, LocalRunner, MethodCache, Stopped
+from .runners import DISK_FULL, NO_SPACE, ClipHooks, ClipRunner, ClusterRunner, LocalRunner, MethodCache, Stopped
 from .schemas import JobOptions
 from .settings import Settings
 from .store import JobRecord, JobStore
@@ -383,7 +384,10 @@ class JobManager:
             now = time.monotonic()
             if now - last_flush[0] >= _PROGRESS_FLUSH_S:
                 last_flush[0] = now
-                store.update(job_id, frames_done=n)
+                try:
+                    store.update(job_id, frames_done=n)
+                except sqlite3.Error as exc:  # e.g. a full disk: progress is also kept in memory, the clip goes on
+                    log.warning("job %s: progress not saved: %s", job_id, exc)
 
         hooks.started, hooks.frames = started, frames
         with self._lock:
@@ -411,8 +415,10 @@ class JobManager:
             outcome: ClipOutcome | None = future.result()
         except CancelledError:
             outcome = None  # shut down before it started: still 'queued' on disk, resumed at the next start
-        except Exception as exc:  # noqa: BLE001 - e.g. the cluster lost the task
-            outcome = ClipOutcome(job.name, str(job.source), "failed", error=f"worker failed: {exc}")
+        except Exception as exc:  # noqa: BLE001 - e.g. the cluster lost the task, or the job table had no room
+            full = is_disk_full(exc)
+            outcome = ClipOutcome(job.name, str(job.source), "failed", detail=DISK_FULL if full else None,
+                                  error=NO_SPACE if full else f"worker failed: {exc}")
         if outcome is None:
             return
         if not was_running and hooks.stop_reason != "deleted" and self._stopping:
@@ -423,16 +429,22 @@ class JobManager:
         now = time.time()
         if outcome.status == "done":
             outcome = self._label_source(outcome, job, rec.filename)
-        if outcome.status == "done":
-            ok = self.store.update(job_id, status="succeeded", finished_at=now, frames_done=outcome.frames,
-                                   frames_total=outcome.frames, seconds=outcome.seconds, error=None)
-            self.metrics.observe_job("succeeded", outcome.seconds)
-        else:
-            message = self.scrub(outcome.error or "failed", job.source, rec.filename)
-            if outcome.detail and outcome.detail not in ("stopped", DISK_FULL):
-                log.error("job %s: %s\n%s", job_id, message, outcome.detail)
-            ok = self._fail(rec, message, seconds=outcome.seconds)
-            self.metrics.observe_job("failed", outcome.seconds)
+        try:
+            if outcome.status == "done":
+                ok = self.store.update(job_id, status="succeeded", finished_at=now, frames_done=outcome.frames,
+                                       frames_total=outcome.frames, seconds=outcome.seconds, error=None)
+                self.metrics.observe_job("succeeded", outcome.seconds)
+            else:
+                message = self.scrub(outcome.error or "failed", job.source, rec.filename)
+                if outcome.detail and outcome.detail not in ("stopped", DISK_FULL):
+                    log.error("job %s: %s\n%s", job_id, message, outcome.detail)
+                if outcome.detail == DISK_FULL:
+                    _remove(job.out_dir)  # partial results of no use: their room lets the failure be recorded
+                ok = self._fail(rec, message, seconds=outcome.seconds)
+                self.metrics.observe_job("failed", outcome.seconds)
+        except sqlite3.Error as exc:  # the job table cannot take the outcome (a full disk): the restart recovers it
+            log.error("job %s ended %s, but the job table could not record it: %s", job_id, outcome.status, exc)
+            return
         if ok:
             (self.job_dir(job_id) / rec.input_name).unlink(missing_ok=True)  # results are kept, the upload is not
         else:
@@ -449,9 +461,10 @@ class JobManager:
             write_json_atomic(gammas, record)
         except (OSError, ValueError) as exc:
             gammas.unlink(missing_ok=True)
-            cause = "no space left in the data folder" if is_disk_full(exc) else str(exc)
+            full = is_disk_full(exc)
             return ClipOutcome(outcome.clip, outcome.source, "failed", seconds=outcome.seconds,
-                               error=f"its results could not be completed: {cause}")
+                               error=NO_SPACE if full else f"its results could not be completed: {exc}",
+                               detail=DISK_FULL if full else None)
         return outcome
 
     def _fail(self, rec: JobRecord, message: str, seconds: float | None = None) -> bool:

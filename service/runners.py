@@ -32,6 +32,7 @@ from .errors import is_disk_full
 
 #: ``ClipOutcome.detail`` of a clip that failed because the data folder is full (a 507, not the clip's fault).
 DISK_FULL = "disk_full"
+NO_SPACE = "no space left in the server's data folder to write its results"
 
 
 class Stopped(Exception):
@@ -122,8 +123,7 @@ def run_one(job: ClipJob, method: Method, opts: ClipOptions, hooks: ClipHooks) -
     except Exception as exc:  # noqa: BLE001 - a bug must fail this job, not the server
         if is_disk_full(exc):
             return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0,
-                               error="no space left in the server's data folder to write its results",
-                               detail=DISK_FULL)
+                               error=NO_SPACE, detail=DISK_FULL)
         if isinstance(exc, (ColonlightError, ValueError)):
             return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0, error=str(exc))
         return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0,

@@ -74,30 +74,28 @@ def readiness(c: httpx.Client) -> tuple[int, dict]:
     return r.status_code, r.json()
 
 
-def wait_uploads(c: httpx.Client, n: int, timeout: float = 10) -> dict:
+def wait_partials(server: ServiceServer, n: int, timeout: float = 10) -> None:
+    """Until ``n`` partial upload files are on disk (each stalled upload has begun its file part)."""
     deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        body = readiness(c)[1]
-        if body["queue"]["uploads"] == n:
-            return body
+    while len(leftovers(server)) != n:
+        assert time.monotonic() < deadline, f"expected {n} partial uploads, found {leftovers(server)}"
         time.sleep(0.05)
-    raise AssertionError(f"expected {n} uploads in flight, /readyz says {body['queue']}")
 
 
 def test_stalled_uploads_do_not_starve_honest_clients(server: ServiceServer, clip: Path) -> None:
     with httpx.Client(base_url=server.url, timeout=60) as c:
         stalled = [stalled_upload(server) for _ in range(4)]
         try:
-            wait_uploads(c, 4)
-            assert len(leftovers(server)) == 4  # their partial files are on disk while they stall
+            wait_partials(server, 4)  # their partial files are on disk while they stall
             code, ready = readiness(c)
-            assert code == 200 and ready["status"] == "ready" and ready["queue"]["admitted"] == 0, ready
+            assert code == 200 and ready["status"] == "ready", ready  # before the fix: 503 busy
+            assert ready["queue"]["admitted"] == 0 and ready["queue"]["uploads"] == 4, ready
 
             honest = c.post("/v1/jobs", files={"file": (clip.name, clip.read_bytes(), "video/mp4")})
             assert honest.status_code == 202, honest.text  # before the fix: 503 queue_full for 60+ s
 
             stalled += [stalled_upload(server) for _ in range(MAX_UPLOADS - 4)]
-            wait_uploads(c, MAX_UPLOADS)
+            wait_partials(server, MAX_UPLOADS)
             t0 = time.monotonic()
             refused = c.post("/v1/jobs", files={"file": (clip.name, clip.read_bytes(), "video/mp4")})
             assert time.monotonic() - t0 < IDLE_S  # told at once, not after the stalled ones time out
@@ -112,8 +110,8 @@ def test_stalled_uploads_do_not_starve_honest_clients(server: ServiceServer, cli
         finally:
             for sock in stalled:
                 sock.close()
-        wait_uploads(c, 0)
         assert leftovers(server) == []  # partial files removed
+        assert readiness(c)[1]["queue"]["uploads"] == 0
         assert wait_done(c, honest.headers["location"], timeout=60)["status"] == "succeeded"
         again = c.post("/v1/jobs", files={"file": (clip.name, clip.read_bytes(), "video/mp4")})
         assert again.status_code == 202, again.text
