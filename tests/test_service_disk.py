@@ -16,7 +16,7 @@ from .media import make_clip, needs_ffmpeg
 from .service_server import ServiceServer
 from .test_service import assert_json_error, leftovers, wait_done
 
-pytestmark = [needs_ffmpeg, pytest.mark.timeout(150)]
+pytestmark = [needs_ffmpeg, pytest.mark.timeout(240)]
 
 TMPFS_MB = 16
 
@@ -100,7 +100,7 @@ def test_results_that_do_not_fit_fail_the_job_with_the_reason(client: httpx.Clie
             assert_json_error(r, 507)
         else:
             assert r.status_code == 202, r.text
-            job = wait_done(client, r.headers["location"])
+            job = wait_done(client, r.headers["location"], timeout=120)
             assert job["status"] == "failed" and "no space left" in job["error"], job
             assert not list((server.data_dir / "jobs" / job["id"]).glob("input*"))  # its upload is gone
             assert_json_error(client.get(job["links"]["video"]), 409)
@@ -111,14 +111,14 @@ def test_results_that_do_not_fit_fail_the_job_with_the_reason(client: httpx.Clie
         filler.unlink()
     ok = post(client, "/v1/jobs", clip)  # with room again, the server carries on
     assert ok.status_code == 202, ok.text
-    assert wait_done(client, ok.headers["location"])["status"] == "succeeded"
+    assert wait_done(client, ok.headers["location"], timeout=120)["status"] == "succeeded"
 
 
 def test_frames_zip_on_a_full_disk_is_507(client: httpx.Client, server: ServiceServer, small_disk: Path,
                                           clip: Path) -> None:
     r = post(client, "/v1/jobs", clip)
     assert r.status_code == 202, r.text
-    job = wait_done(client, r.headers["location"])
+    job = wait_done(client, r.headers["location"], timeout=120)
     assert job["status"] == "succeeded", job
     filler = fill(small_disk, leave=0)
     try:

@@ -17,14 +17,15 @@ import httpx
 import pytest
 
 from colonlight import pipeline
-from colonlight.limits import DEFAULT_MAX_PIXELS
+from colonlight.limits import DEFAULT_MAX_PIXELS, MAX_PIXELS_ENV
+from colonlight_service.settings import Settings
 
 from .media import ffmpeg_exe, make_clip, make_vfr_clip, needs_ffmpeg, truncated_copy
 from .service_server import ServiceServer
 from .test_service import assert_json_error, leftovers, wait_done
 from .test_service_restart import wait_running
 
-pytestmark = [needs_ffmpeg, pytest.mark.timeout(150)]
+pytestmark = [needs_ffmpeg, pytest.mark.timeout(240)]
 
 MiB = 1024 * 1024
 
@@ -96,7 +97,7 @@ def server(tmp_path_factory: pytest.TempPathFactory, random_weights: Path) -> It
 
 @pytest.fixture()
 def client(server: ServiceServer) -> Iterator[httpx.Client]:
-    with httpx.Client(base_url=server.url, timeout=60) as c:
+    with httpx.Client(base_url=server.url, timeout=120) as c:
         yield c
 
 
@@ -106,6 +107,12 @@ def post(client: httpx.Client, route: str, path: Path, name: str | None = None, 
 
 def job_files(server: ServiceServer) -> list[str]:
     return sorted(str(p.relative_to(server.data_dir / "jobs")) for p in (server.data_dir / "jobs").rglob("*"))
+
+
+def test_pixel_cap_is_read_from_the_cli_variable(monkeypatch: pytest.MonkeyPatch) -> None:
+    assert Settings().max_pixels == DEFAULT_MAX_PIXELS
+    monkeypatch.setenv(MAX_PIXELS_ENV, "640000")
+    assert Settings().max_pixels == 640_000  # one variable for the CLI and the service
 
 
 def test_pixel_bomb_is_refused_at_upload_from_its_header(client: httpx.Client, server: ServiceServer,
@@ -133,7 +140,7 @@ def test_failed_job_loses_its_upload_at_once(client: httpx.Client, server: Servi
                                               clips: dict[str, Path]) -> None:
     r = post(client, "/v1/jobs", clips["cut"])
     assert r.status_code == 202, r.text  # its header and first frames are fine: the job is made
-    job = wait_done(client, r.headers["location"])
+    job = wait_done(client, r.headers["location"], timeout=120)
     assert job["status"] == "failed" and "cut.mp4" in job["error"], job
     assert str(server.data_dir) not in job["error"]
     job_dir = server.data_dir / "jobs" / job["id"]
@@ -176,10 +183,10 @@ def test_gammas_name_the_upload_not_a_server_path(client: httpx.Client, server: 
                                                    clips: dict[str, Path], random_weights: Path) -> None:
     r = post(client, "/v1/jobs", clips["ok"], name="../../secret dir/scope 7.mp4")
     assert r.status_code == 202, r.text
-    assert wait_done(client, r.headers["location"])["status"] == "succeeded"
+    assert wait_done(client, r.headers["location"], timeout=120)["status"] == "succeeded"
     served = client.get(r.json()["links"]["gammas"])
     on_disk = json.loads((server.data_dir / "jobs" / r.json()["id"] / "out" / "gammas.json").read_text())
-    sync = post(client, "/v1/enhance", clips["ok"], name="/home/someone/scope 7.mp4")
+    sync = post(client, "/v1/enhance", clips["ok"], name="/home/someone/scope 7.mp4", method="none")
     assert sync.status_code == 200, sync.text
     for gammas in (served.json(), on_disk, sync.json()["gammas"]):
         assert gammas["source"] == "scope 7.mp4" and gammas["clip"] == "scope 7"

@@ -21,7 +21,7 @@ from .media import make_clip, needs_ffmpeg
 from .service_server import ServiceServer
 from .test_service import assert_json_error, leftovers, wait_done
 
-pytestmark = [needs_ffmpeg, pytest.mark.timeout(120)]
+pytestmark = [needs_ffmpeg, pytest.mark.timeout(180)]
 
 IDLE_S = 3.0
 MAX_UPLOADS = 6
