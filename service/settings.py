@@ -37,6 +37,10 @@ class Settings(BaseSettings):
     upload_idle_seconds: float = Field(30.0, gt=0,
                                        description="An upload whose body makes no progress this long gets 408 and "
                                                    "its partial file is removed.")
+    upload_min_bytes_per_s: float = Field(1024.0, ge=0,
+                                          description="Progress means at least this many bytes a second, averaged "
+                                                      "over each upload_idle_seconds (0: any byte); a trickle below "
+                                                      "it is a stall.")
     max_pixels: int = Field(DEFAULT_MAX_PIXELS, ge=1,
                             description="Largest frame (width x height) accepted, read from the stream header at upload "
                                         "time; larger ones get 413 before any frame is decoded (COLONLIGHT_MAX_PIXELS, "

@@ -2,9 +2,9 @@
 
 FastAPI's ``UploadFile`` would parse the whole body into a temporary file before the route runs; here the route
 reads the request stream itself, so that an upload over the cap is answered with 413 as soon as the cap is
-crossed, one whose body stops arriving with 408 once it has made no progress for the idle time, one that meets a
-full disk with 507, and nothing of any of them stays on disk. The client's file name is kept only as a label,
-never as a path.
+crossed, one whose body stops arriving (or only trickles) with 408 once it has made too little progress for the
+idle time, one that meets a full disk with 507, and nothing of any of them stays on disk. The client's file name
+is kept only as a label, never as a path.
 """
 
 from __future__ import annotations
@@ -148,31 +148,46 @@ def too_large(max_bytes: int) -> ApiError:
                     CLOSE)
 
 
-def stalled(idle_seconds: float) -> ApiError:
+def stalled(idle_seconds: float, need: int) -> ApiError:
     return ApiError(408, "request_timeout",
-                    f"the upload made no progress for {idle_seconds:g} s (COLONLIGHT_UPLOAD_IDLE_SECONDS); "
-                    "what had arrived was discarded", CLOSE)
+                    f"the upload made no progress: under {need} bytes arrived in {idle_seconds:g} s "
+                    "(COLONLIGHT_UPLOAD_IDLE_SECONDS, COLONLIGHT_UPLOAD_MIN_BYTES_PER_S); what had arrived was discarded",
+                    CLOSE)
 
 
-async def _chunks(request: Request, idle_seconds: float) -> AsyncIterator[bytes]:
-    """The body of ``request`` chunk by chunk; 408 when no chunk arrives for ``idle_seconds``."""
+async def _chunks(request: Request, idle_seconds: float, min_bytes_per_s: float) -> AsyncIterator[bytes]:
+    """The body of ``request`` chunk by chunk; 408 when a window of ``idle_seconds`` brings fewer than
+    ``min_bytes_per_s * idle_seconds`` bytes (at least one), so that a client trickling a byte now and then
+    cannot hold an upload place for ever. Windows follow each other from the start of the body."""
     stream = request.stream().__aiter__()
+    need = max(1, int(min_bytes_per_s * idle_seconds))
+    window_end = anyio.current_time() + idle_seconds
+    got = 0
     while True:
-        with anyio.move_on_after(idle_seconds) as wait:
+        # A window short of bytes fails at its end; a satisfied one lets the next window run its course too.
+        deadline = window_end if got < need else window_end + idle_seconds
+        with anyio.move_on_after(deadline - anyio.current_time()) as wait:
             try:
                 chunk = await stream.__anext__()
             except StopAsyncIteration:
                 return
         if wait.cancelled_caught:
-            raise stalled(idle_seconds)
+            raise stalled(idle_seconds, need)
+        while anyio.current_time() >= window_end:
+            if got < need:
+                raise stalled(idle_seconds, need)
+            window_end += idle_seconds
+            got = 0
+        got += len(chunk)
         yield chunk
 
 
-async def receive_upload(request: Request, dest: Path, max_bytes: int, idle_seconds: float) -> Upload:
+async def receive_upload(request: Request, dest: Path, max_bytes: int, idle_seconds: float,
+                         min_bytes_per_s: float = 0.0) -> Upload:
     """Stream the multipart body of ``request``: the ``file`` part to ``dest``, other parts as text fields.
 
     Raises :class:`ApiError`: 415 (not multipart), 413 (over ``max_bytes``, checked against Content-Length first
-    and then while reading), 408 (no body bytes for ``idle_seconds``), 507 (the disk is full), 400 (malformed
+    and then while reading), 408 (too few body bytes in a window of ``idle_seconds``, see :func:`_chunks`), 507 (the disk is full), 400 (malformed
     body), 422 (no file part, too many or too long fields). ``dest`` is removed on every error.
     """
     boundary = _boundary(request)
@@ -185,7 +200,7 @@ async def receive_upload(request: Request, dest: Path, max_bytes: int, idle_seco
     fh: IO[bytes] | None = None
     try:
         fh = await anyio.to_thread.run_sync(lambda: open(dest, "xb"))  # noqa: SIM115 - closed below
-        async for chunk in _chunks(request, idle_seconds):
+        async for chunk in _chunks(request, idle_seconds, min_bytes_per_s):
             parser.write(chunk)
             if collector.pending:
                 data = b"".join(collector.pending)

@@ -3,13 +3,15 @@
 They hold upload places (COLONLIGHT_MAX_UPLOADS), never places in the job queue: beside them an honest client's
 job is accepted and done and /readyz stays ready; once every upload place is taken the next upload is told 503 at
 once; after COLONLIGHT_UPLOAD_IDLE_SECONDS without progress each stalled upload gets 408 and its partial file is
-gone. A slow upload that keeps making progress is not cut off.
+gone; so does one that only trickles (under COLONLIGHT_UPLOAD_MIN_BYTES_PER_S). A slow upload that keeps making
+progress is not cut off.
 """
 
 from __future__ import annotations
 
 import json
 import socket
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,6 +26,7 @@ from .test_service import assert_json_error, leftovers, wait_done
 pytestmark = [needs_ffmpeg, pytest.mark.timeout(180)]
 
 IDLE_S = 3.0
+MIN_RATE = 256  # bytes a second: at least 768 bytes in every 3 s
 MAX_UPLOADS = 6
 BOUNDARY = "stall-boundary"
 
@@ -37,7 +40,8 @@ def clip(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def server(tmp_path_factory: pytest.TempPathFactory, random_weights: Path) -> Iterator[ServiceServer]:
     data = tmp_path_factory.mktemp("stalls-server") / "data"
     env = {"COLONLIGHT_WEIGHTS": str(random_weights), "COLONLIGHT_WORKERS": "1", "COLONLIGHT_QUEUE_SIZE": "1",
-           "COLONLIGHT_MAX_UPLOADS": str(MAX_UPLOADS), "COLONLIGHT_UPLOAD_IDLE_SECONDS": str(IDLE_S)}
+           "COLONLIGHT_MAX_UPLOADS": str(MAX_UPLOADS), "COLONLIGHT_UPLOAD_IDLE_SECONDS": str(IDLE_S),
+           "COLONLIGHT_UPLOAD_MIN_BYTES_PER_S": str(MIN_RATE)}
     with ServiceServer(data, env) as srv:
         yield srv
 
@@ -62,8 +66,11 @@ def read_response(sock: socket.socket, timeout: float) -> tuple[int, dict, float
     t0 = time.monotonic()
     sock.settimeout(timeout)
     data = b""
-    while chunk := sock.recv(65536):
-        data += chunk
+    try:
+        while chunk := sock.recv(65536):
+            data += chunk
+    except ConnectionResetError:  # closed with bytes of ours unread: what it sent before is what counts
+        assert data, "the connection was reset before any answer"
     head, _, body = data.partition(b"\r\n\r\n")
     status = int(head.split(b" ", 2)[1])
     return status, json.loads(body), time.monotonic() - t0
@@ -142,4 +149,31 @@ def test_slow_upload_that_keeps_progressing_is_not_cut_off(server: ServiceServer
     assert status == 202, job
     with httpx.Client(base_url=server.url, timeout=60) as c:
         assert wait_done(c, f"/v1/jobs/{job['id']}", timeout=60)["status"] == "succeeded"
+    assert leftovers(server) == []
+
+
+def test_trickling_upload_is_cut_off(server: ServiceServer) -> None:
+    """10 bytes every half second (20 B/s, under MIN_RATE): answered 408 while it is still sending, file removed."""
+    sock = stalled_upload(server)
+    t0 = time.monotonic()
+    stop = threading.Event()
+
+    def trickle() -> None:
+        while not stop.wait(0.5):
+            try:
+                sock.sendall(b"\0" * 10)
+            except OSError:  # answered and closed by the server
+                return
+
+    sender = threading.Thread(target=trickle)
+    sender.start()
+    try:
+        status, body, waited = read_response(sock, timeout=4 * IDLE_S + 10)
+    finally:
+        stop.set()
+        sender.join()
+        sock.close()
+    assert status == 408 and body["code"] == "request_timeout", body
+    assert IDLE_S - 0.5 < waited < 2 * IDLE_S + 10
+    time.sleep(0.2)
     assert leftovers(server) == []

@@ -52,7 +52,7 @@ async def checked_upload(request: Request, manager: JobManager, settings: Settin
     try:
         with manager.receiving():
             upload = await receive_upload(request, manager.new_upload_path(), settings.max_upload_bytes,
-                                          settings.upload_idle_seconds)
+                                          settings.upload_idle_seconds, settings.upload_min_bytes_per_s)
             options = parse_options(upload.fields)
             await manager.check_method(manager.method_spec(options))
             info = await manager.probe(upload)
