@@ -129,6 +129,7 @@ def test_pixel_bomb_is_refused_at_upload_from_its_header(client: httpx.Client, s
         assert "8000x8000" in body["message"] and "COLONLIGHT_MAX_PIXELS" in body["message"]
         assert str(server.data_dir) not in body["message"]
     growth = rss(server, "VmHWM") - base
+    print(f"peak RSS growth for two refused bombs: {growth / MiB:.1f} MiB")
     assert growth < 64 * MiB, f"the server's peak memory grew by {growth / MiB:.0f} MiB for a refused bomb"
     assert job_files(server) == jobs_before  # no job was made
     assert leftovers(server) == []
@@ -211,6 +212,7 @@ def gap_job_memory(server: ServiceServer, clips: dict[str, Path]) -> tuple[int, 
 def test_memory_of_a_large_clip_goes_back_when_it_ends(gap_job_memory: tuple[int, int]) -> None:
     """Freed frame buffers are handed back to the system after each clip (without: +76 MiB stayed resident)."""
     after = gap_job_memory[1]
+    print(f"resident after the job: {after / MiB:+.0f} MiB")
     assert after < 40 * MiB, f"{after / MiB:.0f} MiB more resident after the job ended"
 
 
@@ -220,4 +222,5 @@ def test_repeated_frames_stream_through_a_job(gap_job_memory: tuple[int, int]) -
     """~360 repeats of one 480x360 frame (0.5 MB each as RGB, 187 MB if held at once): the server's peak grows by
     far less (measured: 84 MiB streamed, 258 MiB with the repeats held)."""
     peak_growth = gap_job_memory[0]
+    print(f"peak RSS growth for the repeats: {peak_growth / MiB:.0f} MiB")
     assert peak_growth < 160 * MiB, f"peak grew by {peak_growth / MiB:.0f} MiB"
