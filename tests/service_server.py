@@ -47,7 +47,7 @@ class ServiceServer:
     def url(self) -> str:
         return f"http://127.0.0.1:{self.port}"
 
-    def start(self, wait_ready: bool = True, timeout: float = 60.0) -> ServiceServer:
+    def start(self, wait_ready: bool = True, timeout: float = 180.0) -> ServiceServer:
         self.port = free_port()
         env = {k: v for k, v in os.environ.items() if not k.startswith("COLONLIGHT_")}
         env.update({"COLONLIGHT_DATA_DIR": str(self.data_dir), "COLONLIGHT_DEVICE": "cpu",
