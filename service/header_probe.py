@@ -26,6 +26,9 @@ _LOG_LEVEL_LOCK = threading.Lock()
 def declared_frame_size(path: Path, max_pixels: int) -> tuple[int, int] | None:
     """``(width, height)`` of the largest video stream's header, or None if neither the header nor the decoder
     says (or FFmpeg cannot open the file: the engine's probe then says why, in its words)."""
+    sizes = [wh for wh in _video_sizes(path, max_pixels) if wh[0] * wh[1] > 0]
+    if sizes:  # the usual case (H.264, HEVC, VP9, ...): no need to listen to FFmpeg's log
+        return max(sizes, key=lambda wh: wh[0] * wh[1])
     with _LOG_LEVEL_LOCK:
         level, skip = av.logging.get_level(), av.logging.get_skip_repeated()
         av.logging.set_level(av.logging.ERROR)
