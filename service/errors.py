@@ -9,8 +9,10 @@ header: 400/416) into the same shape.
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
+import sqlite3
 from collections.abc import Mapping
 from http import HTTPStatus
 from typing import Any
@@ -58,6 +60,31 @@ class ApiError(Exception):
         self.code = code
         self.message = message
         self.headers = dict(headers or {})
+
+
+_DISK_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
+
+
+def is_disk_full(exc: BaseException | None) -> bool:
+    """True for "no space left" in any of its forms: an OSError (ENOSPC, EDQUOT, EFBIG) or SQLite's SQLITE_FULL,
+    raised as such or as the cause of another error (the engine wraps OS errors in its own, naming the file)."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, OSError) and exc.errno in _DISK_FULL_ERRNOS:
+            return True
+        if isinstance(exc, sqlite3.Error) and (
+                getattr(exc, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL or "disk is full" in str(exc)):
+            return True
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def storage_full() -> ApiError:
+    """507 for a request that needed space in the data folder and found none (nothing of it is kept)."""
+    return ApiError(507, "insufficient_storage",
+                    "the server's data folder is full; nothing of this request was kept, retry later",
+                    {"Retry-After": "60", "Connection": "close"})
 
 
 def _code_for(status: int) -> str:
@@ -116,6 +143,10 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
+        if is_disk_full(exc):  # wherever it struck (a result zip, the job table): 507, never a 500
+            log.error("%s %s: the data folder is full (%s)", request.method, request.url.path, exc)
+            full = storage_full()
+            return error_response(full.status, full.code, full.message, full.headers)
         log.exception("unexpected error on %s %s", request.method, request.url.path)
         return error_response(500, "internal_error", f"internal error ({type(exc).__name__}); see the server log")
 

@@ -2,12 +2,17 @@
 
 Life of a job::
 
-    POST /v1/jobs -> admitted (or 503) -> upload streamed -> probed (or 415) -> row 'queued' -> 202
+    POST /v1/jobs -> an upload place (or 503) -> upload streamed (413, 408, 507) -> probed (413, 415)
+    -> admitted (or 503) -> row 'queued' -> 202
     a worker takes it -> 'running' (frames_done advances) -> 'succeeded' | 'failed' -> swept after the TTL
 
-Admission counts jobs that are uploading, queued or running; at most ``workers + queue_size`` at once. After a
-crash, jobs left 'queued' or 'running' are resumed at the next start (the pipeline redoes a clip from scratch),
-unless one has already been started ``max_attempts`` times, in which case it is marked failed with the reason.
+Uploads in flight and jobs are counted apart: at most ``max_uploads`` uploads are received (and checked) at once,
+and a job is admitted only once its upload is complete and checked, so a slow or stalled client holds an upload
+place (until its body has made no progress for ``upload_idle_seconds``), never a place in the queue. Admission
+counts jobs that are queued or running; at most ``workers + queue_size`` at once. A job that fails loses its
+upload at once; its results (if any) are kept until the TTL. After a crash, jobs left 'queued' or 'running' are
+resumed at the next start (the pipeline redoes a clip from scratch), unless one has already been started
+``max_attempts`` times, in which case it is marked failed with the reason.
 """
 
 from __future__ import annotations
@@ -21,23 +26,29 @@ import math
 import os
 import secrets
 import shutil
+import sqlite3
 import threading
 import time
+from collections.abc import Iterator
 from concurrent.futures import CancelledError, Future
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import anyio
 
+from colonlight.atomic import write_json_atomic
 from colonlight.batch import ClipJob, ClipOutcome, MethodSpec, estimate_frames
 from colonlight.errors import ColonlightError
 from colonlight.pipeline import GAMMAS_FILE, VIDEO_FILE, ClipOptions
 from colonlight.video import VideoInfo, probe_video
 
-from .errors import ApiError
+from .errors import ApiError, is_disk_full, storage_full
+from .header_probe import declared_frame_size
+from .memory import release_free_memory
 from .metrics import Metrics
-from .runners import ClipHooks, ClipRunner, ClusterRunner, LocalRunner, MethodCache, Stopped
+from .runners import DISK_FULL, NO_SPACE, ClipHooks, ClipRunner, ClusterRunner, LocalRunner, MethodCache, Stopped
 from .schemas import JobOptions
 from .settings import Settings
 from .store import JobRecord, JobStore
@@ -93,6 +104,7 @@ class JobManager:
         self._lock = threading.Lock()
         self._zip_lock = threading.Lock()
         self._admitted = 0
+        self._uploading = 0
         self._queued: set[str] = set()
         self._running: dict[str, ClipHooks] = {}
         self._progress: dict[str, int] = {}
@@ -197,9 +209,9 @@ class JobManager:
         for rec in self.store.with_status("queued", "running"):
             source = self.job_dir(rec.id) / rec.input_name
             if rec.status == "running" and rec.attempts >= self.settings.max_attempts:
-                self._fail(rec.id, f"interrupted by a server stop after {rec.attempts} attempt(s); not retried")
+                self._fail(rec, f"interrupted by a server stop after {rec.attempts} attempt(s); not retried")
             elif not source.is_file():
-                self._fail(rec.id, "interrupted by a server stop, and its upload is gone")
+                self._fail(rec, "interrupted by a server stop, and its upload is gone")
             else:
                 self.store.update(rec.id, status="queued", frames_done=0, note="resumed after a server restart")
                 with self._lock:
@@ -222,22 +234,52 @@ class JobManager:
 
     # ------------------------------------------------------------------------------------------ admission
 
-    def admit(self) -> Admission:
-        """A place for one more job, or 503 (queue full, model failed, shutting down)."""
+    def _refusal(self) -> ApiError | None:
+        """Why a job would not be admitted now (model failed, shutting down, queue full); call with the lock."""
+        retry = {"Retry-After": str(self.settings.retry_after_seconds), **CLOSE}
         if self.model_state == "failed":
-            raise ApiError(503, "model_unavailable", f"the model could not be loaded: {self.model_message}", CLOSE)
+            return ApiError(503, "model_unavailable", f"the model could not be loaded: {self.model_message}", CLOSE)
+        if self._stopping:
+            return ApiError(503, "shutting_down", "the server is shutting down", retry)
+        if self._admitted >= self.settings.capacity:
+            self.metrics.inc("rejected", "queue_full")
+            return ApiError(
+                503, "queue_full",
+                f"all {self.settings.workers} workers are busy and the queue of {self.settings.queue_size} is full; "
+                f"retry in {self.settings.retry_after_seconds} s", retry)
+        return None
+
+    @contextmanager
+    def receiving(self) -> Iterator[None]:
+        """An upload place for the time an upload is received and checked, or 503 before its body is read.
+
+        Refused at once, too, when no job would be admitted now (so that nobody sends gigabytes to be told so);
+        but this holds no place in the queue: that is taken by :meth:`admit` once the upload is complete.
+        """
         with self._lock:
-            if self._stopping:
-                raise ApiError(503, "shutting_down", "the server is shutting down",
-                               {"Retry-After": str(self.settings.retry_after_seconds), **CLOSE})
-            if self._admitted >= self.settings.capacity:
-                self.metrics.inc("rejected", "queue_full")
-                raise ApiError(
-                    503, "queue_full",
-                    f"all {self.settings.workers} workers are busy and the queue of {self.settings.queue_size} is full; "
+            refusal = self._refusal()
+            if refusal is None and self._uploading >= self.settings.max_uploads:
+                self.metrics.inc("rejected", "too_many_uploads")
+                refusal = ApiError(
+                    503, "too_many_uploads",
+                    f"{self.settings.max_uploads} uploads are being received already (COLONLIGHT_MAX_UPLOADS); "
                     f"retry in {self.settings.retry_after_seconds} s",
-                    {"Retry-After": str(self.settings.retry_after_seconds), **CLOSE},
-                )
+                    {"Retry-After": str(self.settings.retry_after_seconds), **CLOSE})
+            if refusal is not None:
+                raise refusal
+            self._uploading += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._uploading -= 1
+
+    def admit(self) -> Admission:
+        """A place for one more job (its upload complete and checked), or 503 (queue full, model failed, stopping)."""
+        with self._lock:
+            refusal = self._refusal()
+            if refusal is not None:
+                raise refusal
             self._admitted += 1
         return Admission(self)
 
@@ -259,12 +301,27 @@ class JobManager:
         return self.uploads_dir / f"{secrets.token_hex(16)}.part"
 
     async def probe(self, upload: Upload) -> VideoInfo:
-        """415 unless the upload decodes as video."""
+        """413 if the frames are over the pixel cap (read from the stream header, before any frame is decoded),
+        415 unless the upload decodes as video."""
+        cap = self.settings.max_pixels
+        declared = await anyio.to_thread.run_sync(declared_frame_size, upload.path, cap, limiter=self._probe_limiter)
+        if declared is not None:
+            self._check_pixels(upload, *declared)
         try:
-            return await anyio.to_thread.run_sync(probe_video, upload.path, limiter=self._probe_limiter)
+            info = await anyio.to_thread.run_sync(probe_video, upload.path, limiter=self._probe_limiter)
         except ColonlightError as exc:
             self.metrics.inc("rejected", "not_video")
             raise ApiError(415, "unsupported_media_type", self.scrub(str(exc), upload.path, upload.filename)) from None
+        self._check_pixels(upload, info.width, info.height)  # a header that said nothing, or too little
+        return info
+
+    def _check_pixels(self, upload: Upload, width: int, height: int) -> None:
+        cap = self.settings.max_pixels
+        if width * height > cap:
+            self.metrics.inc("rejected", "too_many_pixels")
+            raise ApiError(413, "frame_too_large",
+                           f"{upload.filename}: its frames are {width}x{height} ({width * height} pixels), over this "
+                           f"server's limit of {cap} pixels a frame (COLONLIGHT_MAX_PIXELS)")
 
     # ------------------------------------------------------------------------------------------ jobs
 
@@ -283,13 +340,16 @@ class JobManager:
             os.replace(upload.path, job_dir / input_name)
             return estimate_frames(job_dir / input_name, opts.fps or None)
 
-        total = await anyio.to_thread.run_sync(place, limiter=self._probe_limiter)
-        rec = JobRecord(id=job_id, status="queued", filename=upload.filename, input_name=input_name,
-                        input_bytes=upload.size, options=opts.model_dump(), created_at=time.time(), frames_total=total)
         try:
+            total = await anyio.to_thread.run_sync(place, limiter=self._probe_limiter)
+            rec = JobRecord(id=job_id, status="queued", filename=upload.filename, input_name=input_name,
+                            input_bytes=upload.size, options=opts.model_dump(), created_at=time.time(),
+                            frames_total=total)
             await asyncio.to_thread(self.store.insert, rec)
-        except BaseException:
-            _remove(job_dir)
+        except BaseException as exc:
+            await asyncio.to_thread(_remove, job_dir)
+            if is_disk_full(exc):
+                raise storage_full() from None
             raise
         admission.transfer()
         self.metrics.inc("submitted")
@@ -324,7 +384,10 @@ class JobManager:
             now = time.monotonic()
             if now - last_flush[0] >= _PROGRESS_FLUSH_S:
                 last_flush[0] = now
-                store.update(job_id, frames_done=n)
+                try:
+                    store.update(job_id, frames_done=n)
+                except sqlite3.Error as exc:  # e.g. a full disk: progress is also kept in memory, the clip goes on
+                    log.warning("job %s: progress not saved: %s", job_id, exc)
 
         hooks.started, hooks.frames = started, frames
         with self._lock:
@@ -332,7 +395,7 @@ class JobManager:
         try:
             spec, clip_opts = self.method_spec(options), self.clip_options(options)
         except (ApiError, ValueError) as exc:  # options that were valid once but no longer are (settings changed)
-            self._fail(job_id, getattr(exc, "message", str(exc)))
+            self._fail(rec, getattr(exc, "message", str(exc)))
             with self._lock:
                 self._queued.discard(job_id)
                 self._admitted -= 1
@@ -352,8 +415,10 @@ class JobManager:
             outcome: ClipOutcome | None = future.result()
         except CancelledError:
             outcome = None  # shut down before it started: still 'queued' on disk, resumed at the next start
-        except Exception as exc:  # noqa: BLE001 - e.g. the cluster lost the task
-            outcome = ClipOutcome(job.name, str(job.source), "failed", error=f"worker failed: {exc}")
+        except Exception as exc:  # noqa: BLE001 - e.g. the cluster lost the task, or the job table had no room
+            full = is_disk_full(exc)
+            outcome = ClipOutcome(job.name, str(job.source), "failed", detail=DISK_FULL if full else None,
+                                  error=NO_SPACE if full else f"worker failed: {exc}")
         if outcome is None:
             return
         if not was_running and hooks.stop_reason != "deleted" and self._stopping:
@@ -363,24 +428,50 @@ class JobManager:
             return
         now = time.time()
         if outcome.status == "done":
-            ok = self.store.update(job_id, status="succeeded", finished_at=now, frames_done=outcome.frames,
-                                   frames_total=outcome.frames, seconds=outcome.seconds, error=None)
-            self.metrics.observe_job("succeeded", outcome.seconds)
-        else:
-            message = self.scrub(outcome.error or "failed", job.source, rec.filename)
-            if outcome.detail and outcome.detail != "stopped":
-                log.error("job %s: %s\n%s", job_id, message, outcome.detail)
-            ok = self._fail(job_id, message, seconds=outcome.seconds)
-            self.metrics.observe_job("failed", outcome.seconds)
+            outcome = self._label_source(outcome, job, rec.filename)
+        try:
+            if outcome.status == "done":
+                ok = self.store.update(job_id, status="succeeded", finished_at=now, frames_done=outcome.frames,
+                                       frames_total=outcome.frames, seconds=outcome.seconds, error=None)
+                self.metrics.observe_job("succeeded", outcome.seconds)
+            else:
+                message = self.scrub(outcome.error or "failed", job.source, rec.filename)
+                if outcome.detail and outcome.detail not in ("stopped", DISK_FULL):
+                    log.error("job %s: %s\n%s", job_id, message, outcome.detail)
+                if outcome.detail == DISK_FULL:
+                    _remove(job.out_dir)  # partial results of no use: their room lets the failure be recorded
+                ok = self._fail(rec, message, seconds=outcome.seconds)
+                self.metrics.observe_job("failed", outcome.seconds)
+        except sqlite3.Error as exc:  # the job table cannot take the outcome (a full disk): the restart recovers it
+            log.error("job %s ended %s, but the job table could not record it: %s", job_id, outcome.status, exc)
+            return
         if ok:
             (self.job_dir(job_id) / rec.input_name).unlink(missing_ok=True)  # results are kept, the upload is not
         else:
             _remove(self.job_dir(job_id))  # deleted meanwhile
+        release_free_memory()  # what the clip's frames used goes back to the system, not to the next peak
 
-    def _fail(self, job_id: str, message: str, seconds: float | None = None) -> bool:
+    @staticmethod
+    def _label_source(outcome: ClipOutcome, job: ClipJob, label: str) -> ClipOutcome:
+        """The finished clip's gammas.json with ``source`` naming the upload's label, not its server path."""
+        gammas = job.out_dir / GAMMAS_FILE
+        try:
+            record = json.loads(gammas.read_text(encoding="utf-8"))
+            record["source"] = label
+            write_json_atomic(gammas, record)
+        except (OSError, ValueError) as exc:
+            gammas.unlink(missing_ok=True)
+            full = is_disk_full(exc)
+            return ClipOutcome(outcome.clip, outcome.source, "failed", seconds=outcome.seconds,
+                               error=NO_SPACE if full else f"its results could not be completed: {exc}",
+                               detail=DISK_FULL if full else None)
+        return outcome
+
+    def _fail(self, rec: JobRecord, message: str, seconds: float | None = None) -> bool:
+        """Mark the job failed and remove its upload now (whatever results it has are kept until the TTL)."""
         assert self.store is not None
-        now = time.time()
-        return self.store.update(job_id, status="failed", error=message, finished_at=now, seconds=seconds)
+        (self.job_dir(rec.id) / rec.input_name).unlink(missing_ok=True)
+        return self.store.update(rec.id, status="failed", error=message, finished_at=time.time(), seconds=seconds)
 
     def get(self, job_id: str) -> JobRecord | None:
         assert self.store is not None
@@ -489,6 +580,9 @@ class JobManager:
             if over[0]:
                 self.metrics.inc("sync_requests", "too_long")
                 raise too_long
+            if outcome.status != "done" and outcome.detail == DISK_FULL:
+                self.metrics.inc("sync_requests", "failed")
+                raise storage_full()
             if outcome.status != "done":
                 self.metrics.inc("sync_requests", "failed")
                 raise ApiError(422, "unprocessable_clip", self.scrub(outcome.error or "failed", job.source, upload.filename))
@@ -496,6 +590,7 @@ class JobManager:
 
             def read() -> dict[str, Any]:
                 gammas = json.loads((job.out_dir / GAMMAS_FILE).read_text(encoding="utf-8"))
+                gammas["source"] = upload.filename  # the upload's label, not the server's path
                 video = (job.out_dir / VIDEO_FILE).read_bytes()
                 return {"gammas": gammas, "video": {"media_type": "video/mp4", "encoding": "base64",
                                                     "size_bytes": len(video), "data": base64.b64encode(video).decode()}}
@@ -505,6 +600,7 @@ class JobManager:
             return result
         finally:
             await asyncio.to_thread(_remove, work)
+            release_free_memory()
 
     # ------------------------------------------------------------------------------------------ state
 
@@ -517,6 +613,11 @@ class JobManager:
         """(waiting, running, admitted)."""
         with self._lock:
             return len(self._queued), len(self._running), self._admitted
+
+    def uploads_in_flight(self) -> int:
+        """Uploads being received or checked now (they hold no place in the queue)."""
+        with self._lock:
+            return self._uploading
 
     def readiness(self) -> tuple[bool, str, str]:
         """(ready, status, message): ready when the model is loaded and a job would be admitted."""

@@ -28,6 +28,12 @@ from colonlight.errors import ColonlightError
 from colonlight.methods import Method
 from colonlight.pipeline import ClipOptions, enhance_clip
 
+from .errors import is_disk_full
+
+#: ``ClipOutcome.detail`` of a clip that failed because the data folder is full (a 507, not the clip's fault).
+DISK_FULL = "disk_full"
+NO_SPACE = "no space left in the server's data folder to write its results"
+
 
 class Stopped(Exception):
     """Raised inside a running clip (from the frame callback) to stop it: deleted, shut down, or over a limit."""
@@ -114,9 +120,12 @@ def run_one(job: ClipJob, method: Method, opts: ClipOptions, hooks: ClipHooks) -
     except Stopped as exc:
         return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0,
                            error=f"stopped: {exc.reason}", detail="stopped")
-    except (ColonlightError, ValueError) as exc:
-        return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0, error=str(exc))
     except Exception as exc:  # noqa: BLE001 - a bug must fail this job, not the server
+        if is_disk_full(exc):
+            return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0,
+                               error=NO_SPACE, detail=DISK_FULL)
+        if isinstance(exc, (ColonlightError, ValueError)):
+            return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0, error=str(exc))
         return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0,
                            error=f"internal error: {type(exc).__name__}: {exc}", detail=traceback.format_exc())
 

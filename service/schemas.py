@@ -160,7 +160,8 @@ class WorkerState(BaseModel):
 class QueueState(BaseModel):
     depth: int = Field(description="Jobs waiting for a worker.")
     capacity: int = Field(description="Jobs admitted at once (workers + queue size).")
-    admitted: int = Field(description="Jobs admitted now (waiting, running, or still uploading).")
+    admitted: int = Field(description="Jobs admitted now (waiting or running); an upload is admitted once complete.")
+    uploads: int = Field(0, description="Uploads being received or checked now; they hold no place in the queue.")
 
 
 class Readiness(BaseModel):

@@ -11,6 +11,8 @@ from pathlib import Path
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from colonlight.limits import DEFAULT_MAX_PIXELS
+
 
 def _default_workers() -> int:
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
@@ -29,6 +31,20 @@ class Settings(BaseSettings):
                          description="Clips processed at once (default: one per two cores).")
     queue_size: int = Field(16, ge=0, le=10_000, description="Jobs that may wait beyond the running ones; more get 503.")
     max_upload_mb: float = Field(2048.0, gt=0, description="Largest accepted upload in MiB; larger ones get 413.")
+    max_uploads: int = Field(8, ge=1, le=10_000,
+                             description="Uploads received at once; more get 503. Counted apart from the job queue: "
+                                         "a job is admitted only once its upload is complete.")
+    upload_idle_seconds: float = Field(30.0, gt=0,
+                                       description="An upload whose body makes no progress this long gets 408 and "
+                                                   "its partial file is removed.")
+    upload_min_bytes_per_s: float = Field(1024.0, ge=0,
+                                          description="Progress means at least this many bytes a second, averaged "
+                                                      "over each upload_idle_seconds (0: any byte); a trickle below "
+                                                      "it is a stall.")
+    max_pixels: int = Field(DEFAULT_MAX_PIXELS, ge=1,
+                            description="Largest frame (width x height) accepted, read from the stream header at upload "
+                                        "time; larger ones get 413 before any frame is decoded (COLONLIGHT_MAX_PIXELS, "
+                                        "the same variable as the CLI's).")
     sync_max_seconds: float = Field(20.0, gt=0, description="Longest clip POST /v1/enhance accepts (seconds).")
     result_ttl_seconds: float = Field(24 * 3600.0, gt=0, description="Finished jobs are deleted this long after they end.")
     sweep_interval_seconds: float = Field(60.0, gt=0, description="How often expired jobs are swept.")

@@ -2,13 +2,16 @@
 
 FastAPI's ``UploadFile`` would parse the whole body into a temporary file before the route runs; here the route
 reads the request stream itself, so that an upload over the cap is answered with 413 as soon as the cap is
-crossed, and nothing of it stays on disk. The client's file name is kept only as a label, never as a path.
+crossed, one whose body stops arriving (or only trickles) with 408 once it has made too little progress for the
+idle time, one that meets a full disk with 507, and nothing of any of them stays on disk. The client's file name
+is kept only as a label, never as a path.
 """
 
 from __future__ import annotations
 
 import re
 import unicodedata
+from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -20,7 +23,7 @@ from starlette.requests import ClientDisconnect, Request
 
 from colonlight.batch import VIDEO_SUFFIXES
 
-from .errors import ApiError
+from .errors import ApiError, is_disk_full, storage_full
 
 FILE_FIELD = "file"
 MAX_FIELDS = 32
@@ -145,12 +148,47 @@ def too_large(max_bytes: int) -> ApiError:
                     CLOSE)
 
 
-async def receive_upload(request: Request, dest: Path, max_bytes: int) -> Upload:
+def stalled(idle_seconds: float, need: int) -> ApiError:
+    return ApiError(408, "request_timeout",
+                    f"the upload made no progress: under {need} bytes arrived in {idle_seconds:g} s "
+                    "(COLONLIGHT_UPLOAD_IDLE_SECONDS, COLONLIGHT_UPLOAD_MIN_BYTES_PER_S); what had arrived was discarded",
+                    CLOSE)
+
+
+async def _chunks(request: Request, idle_seconds: float, min_bytes_per_s: float) -> AsyncIterator[bytes]:
+    """The body of ``request`` chunk by chunk; 408 when a window of ``idle_seconds`` brings fewer than
+    ``min_bytes_per_s * idle_seconds`` bytes (at least one), so that a client trickling a byte now and then
+    cannot hold an upload place for ever. Windows follow each other from the start of the body."""
+    stream = request.stream().__aiter__()
+    need = max(1, int(min_bytes_per_s * idle_seconds))
+    window_end = anyio.current_time() + idle_seconds
+    got = 0
+    while True:
+        # A window short of bytes fails at its end; a satisfied one lets the next window run its course too.
+        deadline = window_end if got < need else window_end + idle_seconds
+        with anyio.move_on_after(deadline - anyio.current_time()) as wait:
+            try:
+                chunk = await stream.__anext__()
+            except StopAsyncIteration:
+                return
+        if wait.cancelled_caught:
+            raise stalled(idle_seconds, need)
+        while anyio.current_time() >= window_end:
+            if got < need:
+                raise stalled(idle_seconds, need)
+            window_end += idle_seconds
+            got = 0
+        got += len(chunk)
+        yield chunk
+
+
+async def receive_upload(request: Request, dest: Path, max_bytes: int, idle_seconds: float,
+                         min_bytes_per_s: float = 0.0) -> Upload:
     """Stream the multipart body of ``request``: the ``file`` part to ``dest``, other parts as text fields.
 
     Raises :class:`ApiError`: 415 (not multipart), 413 (over ``max_bytes``, checked against Content-Length first
-    and then while reading), 400 (malformed body), 422 (no file part, too many or too long fields). ``dest`` is
-    removed on every error.
+    and then while reading), 408 (too few body bytes in a window of ``idle_seconds``, see :func:`_chunks`), 507 (the disk is full), 400 (malformed
+    body), 422 (no file part, too many or too long fields). ``dest`` is removed on every error.
     """
     boundary = _boundary(request)
     declared = request.headers.get("content-length")
@@ -162,7 +200,7 @@ async def receive_upload(request: Request, dest: Path, max_bytes: int) -> Upload
     fh: IO[bytes] | None = None
     try:
         fh = await anyio.to_thread.run_sync(lambda: open(dest, "xb"))  # noqa: SIM115 - closed below
-        async for chunk in request.stream():
+        async for chunk in _chunks(request, idle_seconds, min_bytes_per_s):
             parser.write(chunk)
             if collector.pending:
                 data = b"".join(collector.pending)
@@ -183,6 +221,11 @@ async def receive_upload(request: Request, dest: Path, max_bytes: int) -> Upload
     except ClientDisconnect:
         _cleanup(fh, dest)
         raise ApiError(400, "client_disconnected", "the client went away during the upload") from None
+    except OSError as exc:
+        _cleanup(fh, dest)
+        if is_disk_full(exc):
+            raise storage_full() from None
+        raise
     except BaseException:
         _cleanup(fh, dest)
         raise

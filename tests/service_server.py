@@ -19,9 +19,18 @@ import httpx
 
 
 def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+    """A free loopback port; from the range ``COLONLIGHT_TEST_PORTS`` (e.g. ``18300-18399``) when that is set, so
+    that test runs sharing a machine keep to their own ports."""
+    low, _, high = os.environ.get("COLONLIGHT_TEST_PORTS", "").partition("-")
+    candidates = range(int(low), int(high or low) + 1) if low.isdigit() else [0]
+    for port in candidates:
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return int(s.getsockname()[1])
+    raise RuntimeError(f"no free port in COLONLIGHT_TEST_PORTS={low}-{high}")
 
 
 class ServiceServer:
@@ -38,7 +47,7 @@ class ServiceServer:
     def url(self) -> str:
         return f"http://127.0.0.1:{self.port}"
 
-    def start(self, wait_ready: bool = True, timeout: float = 60.0) -> ServiceServer:
+    def start(self, wait_ready: bool = True, timeout: float = 180.0) -> ServiceServer:
         self.port = free_port()
         env = {k: v for k, v in os.environ.items() if not k.startswith("COLONLIGHT_")}
         env.update({"COLONLIGHT_DATA_DIR": str(self.data_dir), "COLONLIGHT_DEVICE": "cpu",

@@ -43,23 +43,30 @@ class CheckedUpload:
 
 @asynccontextmanager
 async def checked_upload(request: Request, manager: JobManager, settings: Settings) -> AsyncIterator[CheckedUpload]:
-    """Admit (503), stream the upload to disk (413), validate the options (422), build the method, probe the
-    content (415); on leaving, release the admission (a no-op once a job owns it) and drop the upload file if it is
-    still there (a job moves it away)."""
-    admission = manager.admit()
+    """Take an upload place (503), stream the upload to disk (413, 408, 507), validate the options (422), build
+    the method, probe the content (413 over the pixel cap, 415), and only then admit the job (503). On leaving,
+    release the admission (a no-op once a job owns it) and drop the upload file if it is still there (a job moves
+    it away)."""
     upload: Upload | None = None
+    admission: Admission | None = None
     try:
-        upload = await receive_upload(request, manager.new_upload_path(), settings.max_upload_bytes)
-        options = parse_options(upload.fields)
-        await manager.check_method(manager.method_spec(options))
-        info = await manager.probe(upload)
+        with manager.receiving():
+            upload = await receive_upload(request, manager.new_upload_path(), settings.max_upload_bytes,
+                                          settings.upload_idle_seconds, settings.upload_min_bytes_per_s)
+            options = parse_options(upload.fields)
+            await manager.check_method(manager.method_spec(options))
+            info = await manager.probe(upload)
+        admission = manager.admit()
         yield CheckedUpload(admission, upload, options, info)
     except ApiError as exc:
-        if exc.status == 413:
+        if exc.code == "payload_too_large":
             manager.metrics.inc("rejected", "too_large")
+        elif exc.status == 408:
+            manager.metrics.inc("rejected", "stalled")
         raise
     finally:
-        admission.release()
+        if admission is not None:
+            admission.release()
         if upload is not None and upload.path.exists():
             await anyio.to_thread.run_sync(upload.discard)
 

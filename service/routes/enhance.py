@@ -25,7 +25,7 @@ router = APIRouter(prefix="/v1", tags=["enhance"], dependencies=[Authenticated])
     ),
     response_model=EnhanceResult,
     openapi_extra={"requestBody": upload_request_body("The clip (short) and the enhancement options.")},
-    responses=error_responses(400, 401, 413, 415, 422, 503),
+    responses=error_responses(400, 401, 408, 413, 415, 422, 503, 507),
 )
 async def enhance_now(request: Request, manager: ManagerDep, settings: SettingsDep) -> dict[str, Any]:
     async with checked_upload(request, manager, settings) as c:

@@ -29,6 +29,7 @@ async def readyz(manager: ManagerDep) -> JSONResponse:
     body = Readiness(
         ready=ready, status=status, message=message, model=manager.model_info,  # type: ignore[arg-type]
         workers=WorkerState(total=s.workers, busy=min(running, s.workers)),
-        queue=QueueState(depth=waiting, capacity=s.capacity, admitted=admitted),
+        queue=QueueState(depth=waiting, capacity=s.capacity, admitted=admitted,
+                         uploads=manager.uploads_in_flight()),
     )
     return JSONResponse(body.model_dump(mode="json"), status_code=200 if ready else 503)

@@ -10,7 +10,7 @@ from fastapi import APIRouter, Path, Request, Response
 from fastapi.responses import FileResponse
 
 from ..deps import Authenticated, ManagerDep, SettingsDep
-from ..errors import ApiError, error_responses
+from ..errors import ApiError, error_responses, is_disk_full, storage_full
 from ..jobs import JOB_ID_PATTERN, JobManager
 from ..schemas import JobStatus, upload_request_body
 from ..store import JobRecord
@@ -44,15 +44,18 @@ def _finished(rec: JobRecord) -> None:
     description=(
         "Upload a clip as multipart/form-data (`file`, plus the options of `colonlight enhance`). The upload is "
         "streamed to disk; one over COLONLIGHT_MAX_UPLOAD_MB is refused with 413 as soon as the limit is crossed, "
-        "content that does not decode as video with 415. On success: 202 with the job and a `Location` header to "
-        "poll. When the workers are busy and the queue is full: 503 with `Retry-After`."
+        "one whose body stops arriving for COLONLIGHT_UPLOAD_IDLE_SECONDS with 408, one that finds the data folder "
+        "full with 507, frames over COLONLIGHT_MAX_PIXELS (read from the stream header) with 413, content that "
+        "does not decode as video with 415. The job is admitted only once its upload is complete. On success: 202 "
+        "with the job and a `Location` header to poll. When the workers are busy and the queue is full, or "
+        "COLONLIGHT_MAX_UPLOADS uploads are in flight: 503 with `Retry-After`."
     ),
     response_model=JobStatus,
     openapi_extra={"requestBody": upload_request_body("The clip and the enhancement options.")},
     responses={
         202: {"description": "Accepted: the job is queued.",
               "headers": {"Location": {"description": "URL of the job's status.", "schema": {"type": "string"}}}},
-        **error_responses(400, 401, 413, 415, 422, 503),
+        **error_responses(400, 401, 408, 413, 415, 422, 503, 507),
     },
 )
 async def submit_job(request: Request, response: Response, manager: ManagerDep, settings: SettingsDep) -> JobStatus:
@@ -110,7 +113,7 @@ def get_gammas(job_id: JobId, manager: ManagerDep) -> FileResponse:
     response_class=FileResponse,
     responses={200: {"content": {"application/zip": {"schema": {"type": "string", "format": "binary"}}},
                      "description": "The frames, stored uncompressed."},
-               **error_responses(401, 404, 409, 422)},
+               **error_responses(401, 404, 409, 422, 507)},
 )
 async def get_frames_zip(job_id: JobId, manager: ManagerDep) -> FileResponse:
     rec = await anyio.to_thread.run_sync(_job, manager, job_id)
@@ -119,7 +122,9 @@ async def get_frames_zip(job_id: JobId, manager: ManagerDep) -> FileResponse:
         raise ApiError(404, "no_frames", f"job {rec.id} was run with frames=false: only the video and gammas exist")
     try:
         path = await anyio.to_thread.run_sync(manager.frames_zip, rec)
-    except OSError:
+    except OSError as exc:
+        if is_disk_full(exc):  # no room to build the zip: nothing half-written is left (atomic)
+            raise storage_full() from None
         raise ApiError(404, "result_missing", f"the frames of job {rec.id} are missing on the server") from None
     return FileResponse(path, media_type="application/zip", filename=f"{FsPath(rec.filename).stem}-frames.zip")
 
