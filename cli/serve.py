@@ -46,6 +46,8 @@ def serve(
         log_config=log_config,
         server_header=False,
         timeout_graceful_shutdown=10,
+        ws_max_size=settings.stream_max_frame_bytes,  # /v1/stream: a larger message closes with 1009
+        ws_per_message_deflate=False,  # /v1/stream carries JPEG/PNG, which deflate cannot shrink: spare the CPU
     )
 
 

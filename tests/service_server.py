@@ -19,9 +19,18 @@ import httpx
 
 
 def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+    """A free loopback port: the kernel's choice, or the first free one of ``COLONLIGHT_TEST_PORTS=LO-HI``
+    (for machines shared by several test runs that each keep to a range)."""
+    lo, _, hi = os.environ.get("COLONLIGHT_TEST_PORTS", "").partition("-")
+    candidates = range(int(lo), int(hi) + 1) if lo.isdigit() and hi.isdigit() else [0]
+    for port in candidates:
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return int(s.getsockname()[1])
+    raise RuntimeError(f"no free port in COLONLIGHT_TEST_PORTS={lo}-{hi}")
 
 
 class ServiceServer:
