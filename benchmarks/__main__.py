@@ -1,4 +1,4 @@
-"""Run the benchmarks: `python -m benchmarks [input_size] [enhance] [service] [quality_gate] [objective_landscape]` (default: all).
+"""Run the benchmarks: `python -m benchmarks [input_size] [enhance] [service] [ws_stream] [quality_gate] [objective_landscape]` (default: all).
 
 Options after a name go to that benchmark: `python -m benchmarks quality_gate --json gate.json`.
 """
@@ -13,6 +13,7 @@ BENCHMARKS = {
     "input_size": "benchmarks.input_size",
     "enhance": "benchmarks.enhance_vs_ffmpeg",
     "service": "benchmarks.service_load",
+    "ws_stream": "benchmarks.ws_stream",
     "quality_gate": "benchmarks.quality_gate",
     "objective_landscape": "benchmarks.objective_landscape",
 }

@@ -9,8 +9,11 @@ from __future__ import annotations
 import base64
 import json
 import math
+import os
 import socket
 import struct
+import subprocess
+import sys
 import time
 import zlib
 from collections.abc import Iterator
@@ -26,6 +29,7 @@ from websockets.sync.client import ClientConnection, connect
 
 from colonlight.methods import create_method
 
+from .media import make_clip
 from .service_server import ServiceServer
 
 pytestmark = pytest.mark.timeout(120)
@@ -221,8 +225,7 @@ def test_cap_on_concurrent_streams(server: ServiceServer) -> None:
         for ws in (one, two):
             ws.send(json.dumps({"type": "start"}))
             assert recv_json(ws)["type"] == "ready"
-        with open_stream(server) as three:
-            three.send(json.dumps({"type": "start"}))
+        with open_stream(server) as three:  # refused at once: its key came in the headers
             code, reason, messages = closed_with(three)
         assert code == 1013 and reason.startswith("busy: 2 streams open")
         assert messages[-1]["code"] == "busy" and "COLONLIGHT_STREAM_MAX" in messages[-1]["message"]
@@ -382,3 +385,26 @@ def test_a_client_that_does_not_read_cannot_grow_server_memory(server: ServiceSe
         assert server_rss(server) - rss_before < 80 * 2**20
     finally:
         sock.close()
+
+
+# ---------------------------------------------------------------------------------------------- the README's client
+
+
+def test_the_readme_example_client_works(server: ServiceServer, tmp_path: Path) -> None:
+    """The client printed in the README, run as a user would, on a clip made here."""
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    code = readme.split("```python\n# stream_client.py")[1].split("```")[0]
+    script = tmp_path / "stream_client.py"
+    script.write_text("# stream_client.py" + code)
+    clip = make_clip(tmp_path / "clip.mp4", n_frames=12, size=(160, 120))
+    env = {**os.environ, "COLONLIGHT_API_KEY": KEY}
+    run = subprocess.run([sys.executable, str(script), str(clip), ws_url(server)], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=90)
+    assert run.returncode == 0, run.stderr
+    lines = [json.loads(line) for line in run.stdout.splitlines()]
+    assert lines[0]["type"] == "ready" and lines[-1] == {"type": "end", "frames": 12, "errors": 0}
+    results = lines[1:-1]
+    assert [r["index"] for r in results] == list(range(12))
+    assert [r["time"] for r in results] == pytest.approx([i / 25 for i in range(12)])
+    written = sorted(tmp_path.glob("enhanced_*.jpg"))
+    assert len(written) == 12 and decode(written[-1].read_bytes()).shape == (120, 160, 3)
