@@ -251,7 +251,8 @@ def test_bad_frames_and_messages_are_skipped(server: ServiceServer, weights: Pat
         ("not json", "bad_message", "must be a JSON object"),
         (json.dumps({"no": "type"}), "bad_message", 'with a "type"'),
         (json.dumps({"type": "dance"}), "bad_message", "unknown message type 'dance'"),
-        (json.dumps({"type": "frame", "time": "noon"}), "bad_message", '"time" must be a number'),
+        (json.dumps({"type": "frame", "time": "noon"}), "bad_message", '"time" must be a finite number'),
+        ('{"type": "frame", "time": NaN}', "bad_message", '"time" must be a finite number'),
         (json.dumps({"type": "start"}), "bad_message", "has started already"),
     ]
     rss_before = server_rss(server)
@@ -408,3 +409,24 @@ def test_the_readme_example_client_works(server: ServiceServer, tmp_path: Path) 
     assert [r["time"] for r in results] == pytest.approx([i / 25 for i in range(12)])
     written = sorted(tmp_path.glob("enhanced_*.jpg"))
     assert len(written) == 12 and decode(written[-1].read_bytes()).shape == (120, 160, 3)
+
+
+def test_stopping_the_server_closes_open_streams(tmp_path: Path) -> None:
+    """SIGTERM with a stream open: the client is told (1012, service restart) and the server exits cleanly."""
+    srv = ServiceServer(tmp_path / "data", {"COLONLIGHT_METHOD": "gamma", "COLONLIGHT_WORKERS": "1"}).start()
+    try:
+        with connect(ws_url(srv), proxy=None, max_size=None, compression=None, open_timeout=20) as ws:
+            ws.send(json.dumps({"type": "start", "gamma": 0.5, "format": "png"}))
+            assert recv_json(ws)["method"] == "gamma"
+            f = scene(1)[0]
+            ws.send(png(f))
+            assert recv_json(ws)["gamma"] == 0.5 and isinstance(ws.recv(30), bytes)
+            t0 = time.monotonic()
+            assert srv.proc is not None
+            srv.proc.terminate()
+            code, _, _ = closed_with(ws)
+            assert code == 1012 and time.monotonic() - t0 < 10
+        assert srv.proc.wait(20) in (0, -15)  # uvicorn re-raises SIGTERM after its graceful shutdown
+    finally:
+        srv.stop()
+    assert "Traceback" not in srv.log(), srv.log()

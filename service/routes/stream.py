@@ -232,8 +232,8 @@ class StreamSession:
                               "bad start options") from None
         elif kind == "frame":
             t = message.get("time")
-            if t is not None and (isinstance(t, bool) or not isinstance(t, (int, float))):
-                raise FrameError(f'"time" must be a number, got {t!r}')
+            if t is not None and (isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t)):
+                raise FrameError(f'"time" must be a finite number, got {t!r}')
             self.next_time = None if t is None else float(t)
         elif kind == "end":
             if self.stream is not None:
@@ -275,8 +275,9 @@ class StreamSession:
             payload = (await anyio.to_thread.run_sync(encode_frame, res.frame, opts.format, opts.quality)
                        if opts.frames else None)
             record: dict[str, Any] = {
-                "type": "result", "index": meta.index, "time": meta.time, "gamma": res.gamma,
-                **{k: finite(v) for k, v in res.info.items()}, "width": meta.width, "height": meta.height, "received": round(meta.received, 6),
+                "type": "result", "index": meta.index, "time": meta.time, "gamma": finite(res.gamma),
+                **{k: finite(v) for k, v in res.info.items()},
+                "width": meta.width, "height": meta.height, "received": round(meta.received, 6),
                 "latency_ms": round((time.time() - meta.received) * 1000, 3),
                 "format": opts.format if opts.frames else None, "bytes": len(payload) if payload else 0,
             }
