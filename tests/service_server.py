@@ -19,10 +19,10 @@ import httpx
 
 
 def free_port() -> int:
-    """A free loopback port: the kernel's choice, or the first free one of ``COLONLIGHT_TEST_PORTS=LO-HI``
-    (for machines shared by several test runs that each keep to a range)."""
-    lo, _, hi = os.environ.get("COLONLIGHT_TEST_PORTS", "").partition("-")
-    candidates = range(int(lo), int(hi) + 1) if lo.isdigit() and hi.isdigit() else [0]
+    """A free loopback port; from the range ``COLONLIGHT_TEST_PORTS`` (e.g. ``18300-18399``) when that is set, so
+    that test runs sharing a machine keep to their own ports."""
+    low, _, high = os.environ.get("COLONLIGHT_TEST_PORTS", "").partition("-")
+    candidates = range(int(low), int(high or low) + 1) if low.isdigit() else [0]
     for port in candidates:
         with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
             try:
@@ -30,7 +30,7 @@ def free_port() -> int:
             except OSError:
                 continue
             return int(s.getsockname()[1])
-    raise RuntimeError(f"no free port in COLONLIGHT_TEST_PORTS={lo}-{hi}")
+    raise RuntimeError(f"no free port in COLONLIGHT_TEST_PORTS={low}-{high}")
 
 
 class ServiceServer:
