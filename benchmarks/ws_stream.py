@@ -3,7 +3,9 @@
 Each client streams JPEG frames to a real `colonlight serve` on loopback the way the web page does: one frame in
 flight (it sends the next when the enhanced frame is back), JPEG answers. Reported per number of clients: frames
 per second in all and per client, the client's round trip p50/p95 (send to enhanced frame received), the server's
-own latency p50 (frame received to answer sent, from the records), and the server's peak resident memory. A fresh
+own latency p50 (frame received to answer sent, from the records), the server's CPU time per frame (decode,
+network, LUT, encode, WebSocket; what bounds frames/s on a machine with nothing else to do: cores x 1000 / it), and
+the server's peak resident memory. A fresh
 server per row, so each peak belongs to that row alone; the first frames of each client are a warm-up.
 
     python -m benchmarks ws_stream [--clients 1,2,4] [--frames 150] [--size 640x480] [--depth 1]
@@ -29,6 +31,12 @@ from .common import REPO, markdown_table
 from .service_load import percentile, weights_for_benchmark
 
 WARMUP_FRAMES = 5
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process so far (all its threads), from /proc."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def jpeg_frames(size: tuple[int, int], n: int = 24, seed: int = 0) -> list[bytes]:
@@ -152,14 +160,17 @@ def main(argv: list[str] | None = None) -> str:
             with ServiceServer(tmp / f"data-{n}", env) as srv:
                 start_rss = srv.peak_rss_bytes() or 0
                 url = srv.url.replace("http://", "ws://") + "/v1/stream"
+                assert srv.proc is not None
+                cpu0 = cpu_seconds(srv.proc.pid)
                 wall, answered, rtts, server_ms, errors = run_clients(url, frames, n, args.frames, args.depth)
+                cpu_ms = (cpu_seconds(srv.proc.pid) - cpu0) * 1000 / max(1, n * (args.frames + WARMUP_FRAMES))
                 peak = srv.peak_rss_bytes() or 0
             load1 = os.getloadavg()[0]
             fps = answered / wall if wall > 0 else float("nan")
             rows.append([
                 n, answered, errors, f"{fps:.1f}", f"{fps / n:.1f}",
                 f"{percentile(rtts, 50) * 1000:.0f}", f"{percentile(rtts, 95) * 1000:.0f}",
-                f"{statistics.median(server_ms) if server_ms else float('nan'):.0f}",
+                f"{statistics.median(server_ms) if server_ms else float('nan'):.0f}", f"{cpu_ms:.1f}",
                 f"{start_rss / 2**20:.0f}", f"{peak / 2**20:.0f}", f"{load0:.1f}-{load1:.1f}",
             ])
     head = [
@@ -170,7 +181,7 @@ def main(argv: list[str] | None = None) -> str:
     ]
     table = markdown_table(
         ["clients", "frames", "client errors", "frames/s (all)", "frames/s per client", "round trip p50 ms",
-         "round trip p95 ms", "server latency p50 ms", "RSS after start MiB", "peak RSS MiB", "load avg (1 min)"], rows)
+         "round trip p95 ms", "server latency p50 ms", "server CPU ms/frame", "RSS after start MiB", "peak RSS MiB", "load avg (1 min)"], rows)
     return "\n".join(head) + "\n" + table
 
 
