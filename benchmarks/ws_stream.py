@@ -157,7 +157,8 @@ def main(argv: list[str] | None = None) -> str:
             env["COLONLIGHT_TORCH_THREADS"] = str(args.torch_threads)
         for n in clients:
             load0 = os.getloadavg()[0]
-            with ServiceServer(tmp / f"data-{n}", env) as srv:
+            srv = ServiceServer(tmp / f"data-{n}", env).start(timeout=300)  # a busy machine loads torch slowly
+            try:
                 start_rss = srv.peak_rss_bytes() or 0
                 url = srv.url.replace("http://", "ws://") + "/v1/stream"
                 assert srv.proc is not None
@@ -165,6 +166,8 @@ def main(argv: list[str] | None = None) -> str:
                 wall, answered, rtts, server_ms, errors = run_clients(url, frames, n, args.frames, args.depth)
                 cpu_ms = (cpu_seconds(srv.proc.pid) - cpu0) * 1000 / max(1, n * (args.frames + WARMUP_FRAMES))
                 peak = srv.peak_rss_bytes() or 0
+            finally:
+                srv.stop()
             load1 = os.getloadavg()[0]
             fps = answered / wall if wall > 0 else float("nan")
             rows.append([

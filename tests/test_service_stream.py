@@ -37,6 +37,7 @@ pytestmark = pytest.mark.timeout(120)
 KEY = "s3cret-k3y"
 SEND_TIMEOUT_S = 3.0
 IDLE_S = 6.0
+START_TIMEOUT_S = 180.0  # loading torch takes a while on a busy machine
 
 
 @pytest.fixture(scope="module")
@@ -50,9 +51,12 @@ def server(tmp_path_factory: pytest.TempPathFactory, weights: Path) -> Iterator[
            "COLONLIGHT_STREAM_MAX": "2", "COLONLIGHT_STREAM_MAX_FRAME_MB": "1",
            "COLONLIGHT_STREAM_IDLE_SECONDS": str(IDLE_S),
            "COLONLIGHT_STREAM_SEND_TIMEOUT_SECONDS": str(SEND_TIMEOUT_S)}
-    with ServiceServer(tmp_path_factory.mktemp("stream") / "data", env) as srv:
+    srv = ServiceServer(tmp_path_factory.mktemp("stream") / "data", env).start(timeout=START_TIMEOUT_S)
+    try:
         yield srv
         assert "Traceback" not in srv.log(), srv.log()
+    finally:
+        srv.stop()
 
 
 def ws_url(srv: ServiceServer) -> str:
@@ -413,7 +417,8 @@ def test_the_readme_example_client_works(server: ServiceServer, tmp_path: Path) 
 
 def test_stopping_the_server_closes_open_streams(tmp_path: Path) -> None:
     """SIGTERM with a stream open: the client is told (1012, service restart) and the server exits cleanly."""
-    srv = ServiceServer(tmp_path / "data", {"COLONLIGHT_METHOD": "gamma", "COLONLIGHT_WORKERS": "1"}).start()
+    srv = ServiceServer(tmp_path / "data", {"COLONLIGHT_METHOD": "gamma", "COLONLIGHT_WORKERS": "1"})
+    srv.start(timeout=START_TIMEOUT_S)
     try:
         with connect(ws_url(srv), proxy=None, max_size=None, compression=None, open_timeout=20) as ws:
             ws.send(json.dumps({"type": "start", "gamma": 0.5, "format": "png"}))

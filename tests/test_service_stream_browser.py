@@ -27,8 +27,11 @@ sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory, random_weights: Path) -> Iterator[ServiceServer]:
     env = {"COLONLIGHT_WEIGHTS": str(random_weights), "COLONLIGHT_WORKERS": "1", "COLONLIGHT_API_KEY": KEY}
-    with ServiceServer(tmp_path_factory.mktemp("live") / "data", env) as srv:
+    srv = ServiceServer(tmp_path_factory.mktemp("live") / "data", env).start(timeout=180)  # slow on a busy machine
+    try:
         yield srv
+    finally:
+        srv.stop()
 
 
 def frames_processed(srv: ServiceServer) -> int:
