@@ -3,11 +3,12 @@
 24 clips of 72 frames (256x256), drawn from the generator's "heldout" family with seeds 700000..700023:
 every 4th clip steady (lighting already constant), the others disturbed; of those, two thirds start with two
 undisturbed frames (so the enhanced frames can be compared to the clean ones), and a third are forced to have
-close-occluder moments. Gates (README, "Quality gate"):
+close-occluder moments. Gates (README, "Quality gate"; issue 12's targets):
 
-1. flicker (mean |change of mean luminance| over non-specular, non-border pixels) cut by >= 50% on average over
-   the disturbed clips;
-2. restoration: mean PSNR to the clean frames higher than the input's, on clips with undisturbed seeds;
+1. flicker (mean |change of mean luminance| over non-specular, non-border pixels) no more than 1.1x the clean
+   frames' own flicker, over the disturbed clips (the scene's lighting moves with the scope, so the truth
+   flickers too; flatter than the truth is not the goal, and restoration below keeps a method honest);
+2. restoration: mean PSNR to the clean frames up by >= 3 dB, on clips with undisturbed seeds;
 3. steady clips are not darkened (mean luminance not lower than the input's by more than 0.005).
 
 Run: ``python -m benchmarks.quality_gate [--weights PATH ...]`` (the authors' checkpoint is added when found).
@@ -64,8 +65,14 @@ def evaluate(method_name: str, options: dict[str, object], clips: list) -> list[
     return out
 
 
-def gate(results: list[ClipLighting], clips: list) -> dict[str, object]:  # type: ignore[type-arg]
+FLICKER_VS_CLEAN, PSNR_GAIN_DB, MAX_DARKENING = 1.1, 3.0, 0.005
+
+
+def gate(results: list[ClipLighting], clips: list, truth: list[ClipLighting]) -> dict[str, object]:  # type: ignore[type-arg]
+    """The gate's numbers for one method; ``truth``: the clean frames scored the same way, clip by clip."""
     disturbed = [r for r, c in zip(results, clips) if not c[0].get("steady")]
+    clean_flicker = float(np.mean([t.flicker_out for t, c in zip(truth, clips) if not c[0].get("steady")]))
+    flicker_ratio = float(np.mean([r.flicker_out for r in disturbed])) / clean_flicker
     restore = [r for r, c in zip(results, clips) if c[0].get("undisturbed_seeds")]
     steady = [r for r, c in zip(results, clips) if c[0].get("steady")]
     occl = [r for r, c in zip(results, clips) if c[0].get("close_occluder") == "force"]
@@ -74,14 +81,15 @@ def gate(results: list[ClipLighting], clips: list) -> dict[str, object]:  # type
     psnr_out = float(np.mean([r.psnr_out for r in restore]))
     darkening = float(max(r.mean_luma_in - r.mean_luma_out for r in steady))
     return {
+        "flicker_vs_clean": flicker_ratio,
         "flicker_reduction": reduction,
         "flicker_reduction_occluder_clips": float(np.mean([r.flicker_reduction for r in occl])),
         "psnr_in": psnr_in,
         "psnr_out": psnr_out,
         "steady_max_darkening": darkening,
-        "pass_flicker": reduction >= 0.5,
-        "pass_restoration": psnr_out > psnr_in,
-        "pass_steady": darkening <= 0.005,
+        "pass_flicker": flicker_ratio <= FLICKER_VS_CLEAN,
+        "pass_restoration": psnr_out - psnr_in >= PSNR_GAIN_DB,
+        "pass_steady": darkening <= MAX_DARKENING,
     }
 
 
@@ -104,24 +112,26 @@ def main(argv: list[str] | None = None) -> str:
     for w in args.weights:
         runs[f"rnn ({Path(w).name})"] = ("rnn", {"device": "cpu", "weights": w})
     rows, record = [], {}
+    truth = [clip_lighting(images, clean, clean) for _, images, clean in clips]
     for label, (name, opts) in runs.items():
-        results = ([clip_lighting(images, clean, clean) for _, images, clean in clips] if name == ORACLE
-                   else evaluate(name, opts, clips))
-        g = gate(results, clips)
+        results = truth if name == ORACLE else evaluate(name, opts, clips)
+        g = gate(results, clips, truth)
         record[label] = g
         ok = all(v for k, v in g.items() if k.startswith("pass_"))
-        rows.append([label, f"{100 * g['flicker_reduction']:.0f}%", f"{100 * g['flicker_reduction_occluder_clips']:.0f}%",
+        rows.append([label, f"{g['flicker_vs_clean']:.2f}x", f"{100 * g['flicker_reduction']:.0f}%",
+                     f"{100 * g['flicker_reduction_occluder_clips']:.0f}%",
                      f"{g['psnr_in']:.2f} -> {g['psnr_out']:.2f}", f"{g['steady_max_darkening']:+.4f}",
                      "PASS" if ok else "fail"])
     if args.json:
         args.json.write_text(json.dumps(record, indent=1))
     return "\n".join([
         f"## Quality gate: {N_CLIPS} held-out synthetic clips x {N_FRAMES} frames ({SIZE}x{SIZE}), seeds {args.seed0}..{args.seed0 + N_CLIPS - 1}", "",
-        markdown_table(["method", "flicker cut (disturbed)", "flicker cut (occluder clips)", "PSNR to clean (dB): input -> enhanced",
-                        "steady clips: max darkening", "gate"], rows),
-        "", "Gate: flicker cut >= 50%, PSNR up, darkening <= 0.005 (the `none` row is the control and fails by design;",
-        "the clean-frames row is what a perfect restoration would score: its flicker cut is the most that undoing the",
-        "disturbances can give, because the scene's own lighting changes with the camera's motion).",
+        markdown_table(["method", "flicker vs clean", "flicker cut (disturbed)", "flicker cut (occluder clips)",
+                        "PSNR to clean (dB): input -> enhanced", "steady clips: max darkening", "gate"], rows),
+        "", f"Gate: flicker <= {FLICKER_VS_CLEAN}x the clean frames' own, PSNR up by >= {PSNR_GAIN_DB} dB, darkening <= "
+        f"{MAX_DARKENING} (the `none` row is the control and fails by design; the clean-frames row is a perfect",
+        "restoration: its flicker cut is the most that undoing the disturbances can give, because the scene's own",
+        "lighting changes with the camera's motion).",
     ])
 
 

@@ -16,13 +16,13 @@ if TYPE_CHECKING:
 
 
 def _synthetic_clips(run_dir: Path, n: int, seed: int, frames: int, split: str, render: int,
-                     steady: float, occluders: float) -> list[Path]:
+                     steady: float, occluders: float, clean_seeds: float) -> list[Path]:
     """Render (or reuse) synthetic clips from the generator's training family; returns their frame folders."""
     from colonlight.synth import make_dataset
 
     dirs = make_dataset(run_dir / "data" / split, n, seed=seed, split="train", width=render, height=render,
                         n_frames=frames, fps=18.0, workers=2, video=False, steady_fraction=steady,
-                        occluder_fraction=occluders)
+                        occluder_fraction=occluders, clean_seeds_fraction=clean_seeds)
     return [d / "frames" for d in dirs]
 
 
@@ -44,6 +44,10 @@ def train_cmd(
     synthetic_size: int = typer.Option(128, "--synthetic-size", min=32, help="Render size of synthetic clips (then resized to --size)."),
     synthetic_steady: float = typer.Option(0.25, "--synthetic-steady", min=0.0, max=1.0, help="Fraction of synthetic clips with steady lighting (to be left alone)."),
     synthetic_occluders: float = typer.Option(0.0, "--synthetic-occluders", min=0.0, max=1.0, help="Fraction of synthetic clips forced to have a close-occluder moment (otherwise each clip has one by chance, 35%)."),
+    synthetic_clean_seeds: float = typer.Option(0.0, "--synthetic-clean-seeds", min=0.0, max=1.0, help="Fraction of synthetic clips whose first two frames are undisturbed."),
+    head: str = typer.Option("gamma", "--head", help="gamma (the paper's: one gamma per frame) | gain-gamma (a gain and a gamma per frame)."),
+    objective: str = typer.Option("paper", "--objective", help="paper (unsupervised, the paper's loss) | restore (to the clean frames of synthetic clips) | hybrid (both)."),
+    consistency: float = typer.Option(0.5, "--consistency", min=0.0, help="Weight of the paper's loss in --objective hybrid."),
     method: str = typer.Option("rnn", "--method", help="rnn (the paper's model) | zerodce | zerodce++ (baselines)."),
     size: int = typer.Option(48, "--size", min=16, help="Training input size (match the inference default, 48)."),
     epochs: int = typer.Option(10, "--epochs", min=1),
@@ -65,15 +69,17 @@ def train_cmd(
     extra: dict[str, object] = {"command": command}
     if synthetic:
         train_clips += _synthetic_clips(output, synthetic, synthetic_seed, synthetic_frames, "train", synthetic_size,
-                                        synthetic_steady, synthetic_occluders)
+                                        synthetic_steady, synthetic_occluders, synthetic_clean_seeds)
         extra["data"] = (f"synthetic: {synthetic} clips x {synthetic_frames} frames rendered at {synthetic_size}px, "
                          f"seeds {synthetic_seed}..{synthetic_seed + synthetic - 1}, generator split 'train', "
                          f"about {synthetic_steady:.0%} of them with steady lighting (no disturbance)"
                          + (f", about {synthetic_occluders:.0%} forced to have a close-occluder moment"
-                            if synthetic_occluders else ""))
+                            if synthetic_occluders else "")
+                         + (f", about {synthetic_clean_seeds:.0%} with two undisturbed first frames"
+                            if synthetic_clean_seeds else ""))
         if synthetic_val and not val_clips:
             val_clips = _synthetic_clips(output, synthetic_val, synthetic_seed + synthetic, synthetic_frames, "val",
-                                          synthetic_size, synthetic_steady, synthetic_occluders)
+                                          synthetic_size, synthetic_steady, synthetic_occluders, synthetic_clean_seeds)
             extra["validation_data"] = f"synthetic: {synthetic_val} clips, seeds {synthetic_seed + synthetic}..{synthetic_seed + synthetic + synthetic_val - 1}"
     if not train_clips:
         raise typer.BadParameter("give clips to train on, or --synthetic N")
@@ -91,8 +97,12 @@ def train_cmd(
     # Imported here, not at the top: other commands (enhance above all) do without torch's training side and kornia.
     from colonlight.train import TrainConfig, train
 
-    cfg = TrainConfig(size=size, seq_len=seq_len, stride=stride, batch=batch, lr=lr, epochs=epochs, seed=seed,
-                      fps=fps or None, init=init, anchor=anchor)
+    try:
+        cfg = TrainConfig(size=size, seq_len=seq_len, stride=stride, batch=batch, lr=lr, epochs=epochs, seed=seed,
+                          fps=fps or None, init=init, anchor=anchor, head=head, objective=objective,
+                          consistency=consistency)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc)) from None
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("loss {task.fields[loss]:.4f}"),
                   TimeRemainingColumn(), console=console) as progress:
         task = progress.add_task("epoch", total=None, loss=float("nan"))

@@ -23,7 +23,7 @@ from safetensors.torch import load_file, save_file
 
 from .atomic import atomic_path, write_json_atomic
 from .errors import CheckpointError
-from .model import GammaNet
+from .model import HEAD_OUTPUTS, GammaNet
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
 DEFAULT_WEIGHTS = WEIGHTS_DIR / "colonlight-rnn.safetensors"
@@ -38,6 +38,17 @@ class LoadedWeights:
     sha256: str
     path: Path
     card: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def head(self) -> str:
+        """``gamma`` (the paper's: one gamma per frame) or ``gain-gamma`` (see :mod:`colonlight.correction`)."""
+        return self.net.head
+
+    @property
+    def seed_frames(self) -> int | None:
+        """How many leading frames the weights were trained to pass through unchanged, when the card says."""
+        seeds = self.card.get("seed_frames")
+        return int(seeds) if seeds is not None else None
 
     @property
     def input_size(self) -> int | None:
@@ -90,8 +101,21 @@ def _state_dict_from_pth(path: Path) -> dict[str, torch.Tensor]:
     return {k.removeprefix("module."): v for k, v in obj.items()}
 
 
-def _net_from_state_dict(state: dict[str, torch.Tensor], path: Path) -> GammaNet:
-    net = GammaNet()
+def _head_of(state: dict[str, torch.Tensor], card: dict[str, Any], path: Path) -> str:
+    """The head the weights were trained with: from the output layer's shape, checked against the card."""
+    weight = state.get("out_linear.weight")
+    outputs = int(weight.shape[0]) if isinstance(weight, torch.Tensor) and weight.ndim == 2 else 1
+    heads = {n: h for h, n in HEAD_OUTPUTS.items()}
+    if outputs not in heads:
+        raise CheckpointError(f"{path}: output layer has {outputs} outputs; no head has that many")
+    head = heads[outputs]
+    if card.get("head", head) != head:
+        raise CheckpointError(f"{path}: model card says head {card['head']!r}, the weights have {head!r}")
+    return head
+
+
+def _net_from_state_dict(state: dict[str, torch.Tensor], path: Path, head: str = "gamma") -> GammaNet:
+    net = GammaNet(head=head)
     expected = set(net.state_dict())
     missing = sorted(expected - set(state))
     unexpected = sorted(set(state) - expected)
@@ -131,7 +155,8 @@ def load_weights(path: Path | str | None = None) -> LoadedWeights:
         name = path.stem
     # BatchNorm's step counter is bookkeeping for training only; older saves may lack it.
     state.setdefault("bn.num_batches_tracked", torch.tensor(0, dtype=torch.long))
-    return LoadedWeights(net=_net_from_state_dict(state, path), name=name, sha256=digest, path=path, card=card)
+    net = _net_from_state_dict(state, path, _head_of(state, card, path))
+    return LoadedWeights(net=net, name=name, sha256=digest, path=path, card=card)
 
 
 def save_weights(net: GammaNet, path: Path, card: dict[str, Any]) -> dict[str, Any]:

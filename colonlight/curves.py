@@ -24,6 +24,20 @@ def gamma_lut(gamma: float) -> np.ndarray:
     return np.rint(255.0 * _LEVELS**gamma).astype(np.uint8)
 
 
+def gain_gamma_lut(gain: float, gamma: float) -> np.ndarray:
+    """The table of ``round(255 * min(1, gain * (v / 255) ** gamma))`` for v in 0..255, as uint8.
+
+    ``gain == 1`` gives exactly :func:`gamma_lut`. Both must be finite and positive.
+    """
+    if not np.isfinite(gain) or gain <= 0:
+        raise ValueError(f"gain must be finite and > 0, got {gain!r}")
+    if gain == 1.0:
+        return gamma_lut(gamma)
+    if not np.isfinite(gamma) or gamma <= 0:
+        raise ValueError(f"gamma must be finite and > 0, got {gamma!r}")
+    return np.rint(255.0 * np.minimum(1.0, gain * _LEVELS**gamma)).astype(np.uint8)
+
+
 def apply_lut(frame: np.ndarray, lut: np.ndarray) -> np.ndarray:
     """Apply a 256-entry uint8 table to every sample of a uint8 image (any channel count)."""
     if lut.shape != (256,) or lut.dtype != np.uint8:

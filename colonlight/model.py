@@ -4,6 +4,13 @@ Per frame: conv3x3(3->32) + BatchNorm + ReLU -> ConvLSTM cell (hidden 32, forget
 + ReLU -> global average pool -> linear(32->1) + ReLU = ``a``. The frame is corrected as ``I ** (1/a)``, so the
 gamma applied is ``1/a``. Attribute names match the release's state-dict keys (``in_cnv``, ``bn``,
 ``RNNcell.conv``, ``rnn_cnv``, ``out_linear``) so its checkpoint loads as it is.
+
+Two heads share that backbone (see :mod:`colonlight.correction` for what their outputs mean):
+
+* ``gamma`` (the paper's, the authors' checkpoint): ``linear(32->1) + ReLU = a``, gamma ``1/a``;
+* ``gain-gamma`` (colonlight's default model): ``linear(32->2)``, raw outputs mapped to a gain and a gamma, so
+  the correction ``gain * I ** gamma`` can undo a gain jump and a tone-curve change at once, which one gamma
+  cannot.
 """
 
 from __future__ import annotations
@@ -16,6 +23,8 @@ BN_MOMENTUM = 0.01
 FORGET_BIAS = 1.0
 
 State = tuple[Tensor, Tensor]
+#: Head name -> number of outputs of ``out_linear``.
+HEAD_OUTPUTS = {"gamma": 1, "gain-gamma": 2}
 
 
 class ConvLSTMCell(nn.Module):
@@ -49,13 +58,16 @@ class GammaNet(nn.Module):
             a, state = net.step(frame, state)
     """
 
-    def __init__(self, hidden: int = HIDDEN) -> None:
+    def __init__(self, hidden: int = HIDDEN, head: str = "gamma") -> None:
         super().__init__()
+        if head not in HEAD_OUTPUTS:
+            raise ValueError(f"unknown head {head!r}; choose from {', '.join(HEAD_OUTPUTS)}")
+        self.head = head
         self.in_cnv = nn.Conv2d(3, hidden, 3, padding=1)
         self.bn = nn.BatchNorm2d(hidden, momentum=BN_MOMENTUM)
         self.RNNcell = ConvLSTMCell(hidden, hidden, 3)  # noqa: N815 - the release's key name
         self.rnn_cnv = nn.Conv2d(hidden, hidden, 3, padding=1)
-        self.out_linear = nn.Linear(hidden, 1)
+        self.out_linear = nn.Linear(hidden, HEAD_OUTPUTS[head])
         self.reset_parameters()
 
     def reset_parameters(self) -> None:
@@ -68,17 +80,26 @@ class GammaNet(nn.Module):
             elif isinstance(m, nn.BatchNorm2d):
                 nn.init.normal_(m.weight, 1.0, 0.02)
                 nn.init.zeros_(m.bias)
+        if self.head != "gamma":  # start at the identity correction (gain 1, gamma 1): small weights, zero bias
+            nn.init.normal_(self.out_linear.weight, 0.0, 1e-2)
+            nn.init.zeros_(self.out_linear.bias)
 
     def step(self, frame: Tensor, state: State | None = None) -> tuple[Tensor, State]:
-        """One frame. ``frame``: ``(B, 3, H, W)`` in [0, 1] -> ``a``: ``(B,)`` and the new state."""
+        """One frame. ``frame``: ``(B, 3, H, W)`` in [0, 1] -> the head's output and the new state.
+
+        Head ``gamma``: ``a`` of shape ``(B,)`` (gamma ``1/a``); ``gain-gamma``: raw ``(B, 2)`` outputs.
+        """
         x = torch.relu(self.bn(self.in_cnv(frame)))
         state = self.RNNcell(x, state)
         x = torch.relu(self.rnn_cnv(state[0]))
-        a = torch.relu(self.out_linear(x.mean(dim=(2, 3))))
-        return a[:, 0], state
+        z = self.out_linear(x.mean(dim=(2, 3)))
+        if self.head == "gamma":
+            return torch.relu(z)[:, 0], state
+        return z, state
 
     def forward(self, frames: Tensor) -> Tensor:
-        """A batch of sequences: ``(B, T, 3, H, W)`` in [0, 1] -> ``a``: ``(B, T)``, state from zero."""
+        """A batch of sequences: ``(B, T, 3, H, W)`` in [0, 1] -> outputs ``(B, T)`` (``gamma`` head) or
+        ``(B, T, 2)``, state from zero."""
         if frames.ndim != 5 or frames.shape[2] != 3:
             raise ValueError(f"expected (B, T, 3, H, W), got {tuple(frames.shape)}")
         state: State | None = None

@@ -34,11 +34,15 @@ from .atomic import atomic_path, write_json_atomic
 from .checkpoint import load_weights, save_weights
 from .errors import InputError
 from .methods.rnn import DEFAULT_MODEL_SIZE
-from .model import GammaNet, correct, parameter_count
+from .correction import apply_gain_gamma, gain_gamma_from_raw
+from .model import HEAD_OUTPUTS, GammaNet, correct, parameter_count
 from .sources import clip_frames
 
 SPECULAR_THRESHOLD = 0.7
 SEEDS = 2
+#: Input samples at or above this are clipped by the recorder: they say nothing of the clean value.
+SATURATED = 0.98
+OBJECTIVES = ("paper", "restore", "hybrid")
 
 
 @dataclass
@@ -56,6 +60,31 @@ class TrainConfig:
     ssim_window: int = 11
     init: str | None = None  # a checkpoint to start from (fine-tuning), else fresh Xavier init
     anchor: float = 0.0  # weight of the opt-in brightness anchor; 0 is the paper's objective
+    head: str = "gamma"  # "gamma" (the paper's) or "gain-gamma" (colonlight.correction)
+    objective: str = "paper"  # "paper" (unsupervised) | "restore" (to clean frames) | "hybrid" (both)
+    consistency: float = 0.5  # weight of the paper's loss inside "hybrid"
+
+    def __post_init__(self) -> None:
+        if self.objective not in OBJECTIVES:
+            raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}")
+        if self.head not in HEAD_OUTPUTS:
+            raise ValueError(f"head must be one of {', '.join(HEAD_OUTPUTS)}, got {self.head!r}")
+
+    @property
+    def supervised(self) -> bool:
+        """The objective needs each clip's clean frames."""
+        return self.objective != "paper"
+
+    @property
+    def frozen_bn(self) -> bool:
+        """BatchNorm keeps its running statistics (no batch statistics) when training to restore: batch
+        statistics would remove the batch's common brightness, the very thing a restoring model must see."""
+        return self.supervised
+
+    @property
+    def seed_frames(self) -> int:
+        """Leading frames passed through unchanged: the paper's 2, none when trained to restore every frame."""
+        return SEEDS if self.objective == "paper" else 0
 
 
 @dataclass
@@ -84,16 +113,59 @@ def load_clip_array(path: Path, size: int, fps: float | None) -> np.ndarray:
     return np.stack(frames)
 
 
+def initial_net(cfg: TrainConfig) -> GammaNet:
+    """A fresh network, or ``cfg.init``'s weights; a checkpoint with another head gives its backbone (every
+    layer but the output layer), so a gain-gamma model can start from a model trained with the paper's loss."""
+    if not cfg.init:
+        return GammaNet(head=cfg.head)
+    start = load_weights(cfg.init).net
+    if start.head == cfg.head:
+        return start
+    net = GammaNet(head=cfg.head)
+    backbone = {k: v for k, v in start.state_dict().items() if not k.startswith("out_linear.")}
+    net.load_state_dict(backbone, strict=False)
+    return net
+
+
+def load_sequences(clips: Sequence[Path], cfg: TrainConfig) -> SequenceSet:
+    """The training windows of ``clips``; for a supervised objective, with each clip's clean frames."""
+    arrays = [load_clip_array(p, cfg.size, cfg.fps) for p in clips]
+    clean = None
+    if cfg.supervised:
+        clean = []
+        for p in clips:
+            folder = clean_folder(p)
+            if folder is None:
+                raise InputError(f"{p}: objective {cfg.objective!r} needs clean frames beside the clip (clean/)")
+            clean.append(load_clip_array(folder, cfg.size, cfg.fps))
+    return SequenceSet(arrays, cfg.seq_len, cfg.stride, clean)
+
+
 def window_starts(n_frames: int, seq_len: int, stride: int) -> list[int]:
     """Start indices of the ``seq_len``-frame windows with the given stride (clips shorter than one give none)."""
     return list(range(0, n_frames - seq_len + 1, stride))
 
 
-class SequenceSet:
-    """The ``seq_len``-frame windows of a set of clips, held once per clip (windows overlap, frames are shared)."""
+def clean_folder(clip: Path) -> Path | None:
+    """The clean frames beside a synthetic clip's recorded ones (``clip/frames`` -> ``clip/clean``), if any."""
+    clip = Path(clip)
+    for cand in (clip.parent / "clean", clip / "clean"):
+        if cand.is_dir() and cand != clip:
+            return cand
+    return None
 
-    def __init__(self, clips: Sequence[np.ndarray], seq_len: int, stride: int) -> None:
+
+class SequenceSet:
+    """The ``seq_len``-frame windows of a set of clips, held once per clip (windows overlap, frames are shared);
+    with ``clean``, each clip's clean frames beside it (same shape), for the supervised objectives."""
+
+    def __init__(
+        self, clips: Sequence[np.ndarray], seq_len: int, stride: int, clean: Sequence[np.ndarray] | None = None
+    ) -> None:
         self.clips = [torch.from_numpy(c) for c in clips]
+        self.clean = [torch.from_numpy(c) for c in clean] if clean is not None else None
+        if self.clean is not None and [c.shape for c in self.clean] != [c.shape for c in self.clips]:
+            raise InputError("clean frames do not match their clips frame for frame")
         self.seq_len = seq_len
         self.index = [(ci, s) for ci, c in enumerate(clips) for s in window_starts(len(c), seq_len, stride)]
 
@@ -102,8 +174,42 @@ class SequenceSet:
 
     def batch(self, ids: Sequence[int]) -> torch.Tensor:
         """``(B, seq_len, 3, H, W)`` float in [0, 1]."""
-        seqs = [self.clips[ci][s : s + self.seq_len] for ci, s in (self.index[i] for i in ids)]
+        return self._stack(self.clips, ids)
+
+    def clean_batch(self, ids: Sequence[int]) -> torch.Tensor:
+        """The clean frames of the same windows."""
+        if self.clean is None:
+            raise ValueError("this set has no clean frames")
+        return self._stack(self.clean, ids)
+
+    def _stack(self, clips: list[torch.Tensor], ids: Sequence[int]) -> torch.Tensor:
+        seqs = [clips[ci][s : s + self.seq_len] for ci, s in (self.index[i] for i in ids)]
         return torch.stack(seqs).float().div_(255.0)
+
+
+def apply_head(frames: torch.Tensor, out: torch.Tensor, head: str) -> torch.Tensor:
+    """Frames corrected by the head's outputs (``(B, T)`` for ``gamma``, ``(B, T, 2)`` for ``gain-gamma``)."""
+    if head == "gamma":
+        return correct(frames, out)
+    gain, gamma = gain_gamma_from_raw(out)
+    return apply_gain_gamma(frames, gain, gamma)
+
+
+def restore_loss(frames: torch.Tensor, clean: torch.Tensor, out: torch.Tensor, head: str) -> torch.Tensor:
+    """Mean absolute difference between the corrected frames and the clean ones, over the samples the recorder
+    did not clip (a clipped input sample carries no information about its clean value). Every frame is a
+    target: a model trained this way corrects from the first frame on (no seed frames)."""
+    corrected = apply_head(frames, out, head)
+    keep = (frames < SATURATED).float()
+    return ((corrected - clean).abs() * keep).sum() / keep.sum().clamp_min(1.0)
+
+
+def paper_loss_any_head(frames: torch.Tensor, out: torch.Tensor, head: str, window: int, anchor: float) -> torch.Tensor:
+    """The paper's loss for either head (``sequence_loss`` takes ``a``; the gain-gamma head's frames are
+    corrected first and compared the same way)."""
+    if head == "gamma":
+        return sequence_loss(frames, out, window, anchor)
+    return corrected_sequence_loss(frames, apply_head(frames, out, head), window, anchor)
 
 
 def sequence_loss(frames: torch.Tensor, a: torch.Tensor, window: int = 11, anchor: float = 0.0) -> torch.Tensor:
@@ -112,11 +218,20 @@ def sequence_loss(frames: torch.Tensor, a: torch.Tensor, window: int = 11, ancho
     ``anchor > 0`` adds ``anchor * |masked mean(corrected target) - masked mean(raw target)|`` per target (see
     the module docstring); 0 leaves the paper's loss unchanged.
     """
-    b, t = frames.shape[:2]
+    if frames.shape[1] <= SEEDS:
+        raise ValueError(f"sequences need more than {SEEDS} frames, got {frames.shape[1]}")
+    return corrected_sequence_loss(frames, correct(frames, a), window, anchor)
+
+
+def corrected_sequence_loss(
+    frames: torch.Tensor, corrected: torch.Tensor, window: int = 11, anchor: float = 0.0
+) -> torch.Tensor:
+    """The paper's loss given the corrected frames ``(B, T, 3, H, W)`` (their seeds are replaced by the raw
+    seeds, which are written unchanged)."""
+    t = frames.shape[1]
     if t <= SEEDS:
         raise ValueError(f"sequences need more than {SEEDS} frames, got {t}")
-    corrected = correct(frames[:, SEEDS:], a[:, SEEDS:])
-    out = torch.cat([frames[:, :SEEDS], corrected], dim=1)  # seeds are written unchanged
+    out = torch.cat([frames[:, :SEEDS], corrected[:, SEEDS:]], dim=1)  # seeds are written unchanged
     losses = []
     for k in range(SEEDS, t):
         target = out[:, k]
@@ -134,7 +249,20 @@ def sequence_loss(frames: torch.Tensor, a: torch.Tensor, window: int = 11, ancho
     return torch.stack(losses).mean()
 
 
+def batch_loss(net: GammaNet, data: SequenceSet, ids: Sequence[int], cfg: TrainConfig, anchor: float) -> torch.Tensor:
+    """The configured objective on one batch of windows."""
+    x = data.batch(ids)
+    out = net(x)
+    if cfg.objective == "paper":
+        return paper_loss_any_head(x, out, cfg.head, cfg.ssim_window, anchor)
+    loss = restore_loss(x, data.clean_batch(ids), out, cfg.head)
+    if cfg.objective == "hybrid":
+        loss = loss + cfg.consistency * paper_loss_any_head(x, out, cfg.head, cfg.ssim_window, anchor)
+    return loss
+
+
 def _evaluate(net: GammaNet, data: SequenceSet, cfg: TrainConfig) -> float | None:
+    """Validation loss: the paper's loss for the paper's objective, else the objective itself (no anchor)."""
     if len(data) == 0:
         return None
     net.eval()
@@ -142,10 +270,11 @@ def _evaluate(net: GammaNet, data: SequenceSet, cfg: TrainConfig) -> float | Non
     with torch.no_grad():
         for start in range(0, len(data), cfg.batch):
             ids = list(range(start, min(start + cfg.batch, len(data))))
-            x = data.batch(ids)
-            total += float(sequence_loss(x, net(x), cfg.ssim_window)) * len(ids)
+            total += float(batch_loss(net, data, ids, cfg, 0.0)) * len(ids)
             count += len(ids)
     net.train()
+    if cfg.frozen_bn:
+        net.bn.eval()
     return total / count
 
 
@@ -186,6 +315,26 @@ def latest_state(run_dir: Path) -> Path | None:
     return states[-1].with_suffix("") if states else None
 
 
+ARCHITECTURES = {
+    "gamma": "GammaNet (Zhang et al. IPMI 2021): conv-BN-ReLU, ConvLSTM(32), conv-ReLU, GAP, linear-ReLU",
+    "gain-gamma": "GammaNet backbone (Zhang et al. IPMI 2021): conv-BN-ReLU, ConvLSTM(32), conv-ReLU, GAP, "
+    "linear(32->2): gain and gamma (colonlight.correction)",
+}
+
+
+def objective_text(cfg: TrainConfig) -> str:
+    """The objective in words, for the model card."""
+    paper = "mean over refs (t-1, t-2 corrected; seeds 0, 1 raw) of masked mean(1 - SSIM); mask: input > 0.7"
+    if cfg.anchor:
+        paper += f"; plus {cfg.anchor} x |masked mean shift of the target| (brightness anchor)"
+    restore = f"mean |corrected - clean| over input samples below {SATURATED} (every frame a target)"
+    if cfg.objective == "paper":
+        return paper
+    if cfg.objective == "restore":
+        return restore
+    return f"{restore}; plus {cfg.consistency} x the paper's loss ({paper})"
+
+
 ProgressFn = Callable[[int, int, int, float], None]
 
 
@@ -210,13 +359,15 @@ def train(
     run_dir = Path(run_dir)
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed)
-    train_set = SequenceSet([load_clip_array(p, cfg.size, cfg.fps) for p in train_clips], cfg.seq_len, cfg.stride)
-    val_set = SequenceSet([load_clip_array(p, cfg.size, cfg.fps) for p in val_clips], cfg.seq_len, cfg.stride)
+    train_set = load_sequences(train_clips, cfg)
+    val_set = load_sequences(val_clips, cfg)
     if len(train_set) == 0:
         raise InputError(f"no training sequences: clips need at least {cfg.seq_len} frames")
 
-    net = load_weights(cfg.init).net if cfg.init else GammaNet()
+    net = initial_net(cfg)
     net.train()
+    if cfg.frozen_bn:
+        net.bn.eval()
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     start_epoch, history = 0, []
     state_path = latest_state(run_dir) if resume else None
@@ -232,8 +383,7 @@ def train(
         total = 0.0
         for step in range(steps):
             ids = order[step * cfg.batch : (step + 1) * cfg.batch].tolist()
-            x = train_set.batch(ids)
-            loss = sequence_loss(x, net(x), cfg.ssim_window, cfg.anchor)
+            loss = batch_loss(net, train_set, ids, cfg, cfg.anchor)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -252,14 +402,16 @@ def train(
     card = {
         "name": name,
         "version": __version__,
-        "architecture": "GammaNet (Zhang et al. IPMI 2021): conv-BN-ReLU, ConvLSTM(32), conv-ReLU, GAP, linear-ReLU",
+        "architecture": ARCHITECTURES[cfg.head],
+        "head": cfg.head,
+        "seed_frames": cfg.seed_frames,
         "parameters": parameter_count(net),
         "input_size": cfg.size,
         "training": {
             **asdict(cfg),
-            "objective": "mean over refs (t-1, t-2 corrected; seeds 0, 1 raw) of masked mean(1 - SSIM); mask: input > 0.7"
-            + (f"; plus {cfg.anchor} x |masked mean shift of the target| (brightness anchor)" if cfg.anchor else ""),
-            "val_loss": "the paper's loss (no anchor)",
+            "objective": objective_text(cfg),
+            "batchnorm": "frozen (running statistics)" if cfg.frozen_bn else "batch statistics",
+            "val_loss": "the paper's loss (no anchor)" if cfg.objective == "paper" else "the objective (no anchor)",
             "train_clips": len(train_clips),
             "train_sequences": len(train_set),
             "val_clips": len(val_clips),

@@ -354,3 +354,35 @@ def test_read_tum_reads_what_tum_line_writes(tmp_path: Path) -> None:
     (tmp_path / "poses.txt").write_text("\n".join(lines) + "\n")
     for got, want in zip(read_tum(tmp_path / "poses.txt"), poses, strict=True):
         assert np.allclose(got, want, atol=1e-8)
+
+
+def test_every_randomised_knob_has_held_out_values() -> None:
+    """Issue 12: the held-out family must reach values training never draws, for every randomised setting."""
+    assert all(spec.heldout for spec in PARAM_SPECS.values()), [n for n, s in PARAM_SPECS.items() if not s.heldout]
+    tight = [SynthConfig.sample(np.random.default_rng(s), split="heldout").mask_radius for s in range(60)]
+    assert any(0.8 <= r < 1.0 for r in tight)  # a tighter black field stop than training draws
+    train = [SynthConfig.sample(np.random.default_rng(s), split="train").mask_radius for s in range(60)]
+    assert all(r == 0.0 or r >= 1.0 for r in train)
+
+
+def test_response_shoulder_is_a_monotone_curve_through_black_and_white() -> None:
+    from colonlight.synth.render import response
+
+    y = np.linspace(0, 1, 101, dtype=np.float32)
+    assert np.array_equal(response(y, 0.0), y)
+    for s in (0.3, 1.2):
+        f = response(y, s)
+        assert f[0] == 0 and f[-1] == pytest.approx(1.0) and np.all(np.diff(f) > 0)
+        assert f[10] > y[10]  # shadows lifted, highlights compressed
+
+
+def test_exposure_goes_in_before_the_shoulder() -> None:
+    """With a shoulder, a lagging auto-exposure is not a pure display gain: it acts on linear light."""
+    from colonlight.synth.disturb import LightingSchedule
+    from colonlight.synth.render import response
+
+    sched = LightingSchedule(2.2, 1.0, np.array([1.0]), np.array([1.0]), np.array([2.0]))
+    y = np.linspace(0.05, 0.9, 20, dtype=np.float32)
+    want = response(y * np.float32(2.0 ** (1 / 2.2)), 0.8)
+    assert np.allclose(sched.apply(0, y, 0.8), want)
+    assert np.allclose(sched.apply(0, y, 0.0), y * np.float32(2.0 ** (1 / 2.2)))

@@ -17,7 +17,8 @@ import numpy as np
 import torch
 
 from ..checkpoint import LoadedWeights, load_weights
-from ..curves import apply_gamma
+from ..correction import gain_gamma_values
+from ..curves import apply_gamma, apply_lut, gain_gamma_lut
 from ..device import resolve_device
 from ..model import State
 from .base import FrameResult, Method, MethodStream, check_frame
@@ -26,6 +27,8 @@ from .base import FrameResult, Method, MethodStream, check_frame
 DEFAULT_MODEL_SIZE = 48
 #: The applied gamma is kept inside this range; a value outside it is clamped and the clamp recorded.
 GAMMA_MIN, GAMMA_MAX = 0.125, 4.0
+#: The gain of the gain-gamma head is kept inside this range (its tanh bound is about 0.3 .. 3.3).
+GAIN_MIN, GAIN_MAX = 0.25, 4.0
 SEED_FRAMES = 2
 
 
@@ -43,6 +46,17 @@ def clamp_gamma(a: float) -> tuple[float, bool]:
     if gamma > GAMMA_MAX:
         return GAMMA_MAX, True
     return gamma, False
+
+
+def clamp_gain_gamma(z0: float, z1: float) -> tuple[float, float, bool]:
+    """``(gain, gamma, clamped)`` of the gain-gamma head's raw outputs; gamma kept in the same range as the
+    gamma head's, gain within ``[GAIN_MIN, GAIN_MAX]``; non-finite outputs leave the frame unchanged, flagged."""
+    if not (math.isfinite(z0) and math.isfinite(z1)):
+        return 1.0, 1.0, True
+    gain, gamma = gain_gamma_values(z0, z1)
+    kept_gamma = min(max(gamma, GAMMA_MIN), GAMMA_MAX)
+    kept_gain = min(max(gain, GAIN_MIN), GAIN_MAX)
+    return kept_gain, kept_gamma, (kept_gamma != gamma or kept_gain != gain)
 
 
 def network_input(frame: np.ndarray, size: int | None) -> np.ndarray:
@@ -71,25 +85,37 @@ class RecurrentGammaStream(MethodStream):
         self._state: State | None = None
         self._index = 0
 
-    def predict_a(self, frame: np.ndarray) -> float:
-        """Advance the recurrent state by one frame and return the network's raw ``a``."""
+    def predict(self, frame: np.ndarray) -> list[float]:
+        """Advance the recurrent state by one frame and return the head's raw outputs (``[a]`` for the
+        ``gamma`` head, ``[z0, z1]`` for ``gain-gamma``)."""
         m = self._method
         x = to_tensor(network_input(frame, m.model_size), m.device)
         with torch.inference_mode():
-            a, self._state = m.weights.net.step(x, self._state)
-        return float(a.item())
+            out, self._state = m.weights.net.step(x, self._state)
+        return [float(v) for v in out.reshape(-1).tolist()]
+
+    def predict_a(self, frame: np.ndarray) -> float:
+        """Advance the recurrent state by one frame and return the ``gamma`` head's raw ``a``."""
+        return self.predict(frame)[0]
 
     def push(self, frame: np.ndarray) -> list[FrameResult]:
         check_frame(frame)
-        a = self.predict_a(frame)
+        raw = self.predict(frame)
         index, self._index = self._index, self._index + 1
+        gain_gamma = self._method.weights.head == "gain-gamma"
+        info: dict[str, Any] = {"z": raw} if gain_gamma else {"a": raw[0]}
         if index < self._method.seeds:
-            return [FrameResult(frame=frame, gamma=1.0, info={"a": a, "seed": True})]
-        gamma, clamped = clamp_gamma(a)
-        info: dict[str, Any] = {"a": a}
+            return [FrameResult(frame=frame, gamma=1.0, info={**info, "seed": True})]
+        if gain_gamma:
+            gain, gamma, clamped = clamp_gain_gamma(*raw)
+            info["gain"] = gain
+            corrected = apply_lut(frame, gain_gamma_lut(gain, gamma))
+        else:
+            gamma, clamped = clamp_gamma(raw[0])
+            corrected = apply_gamma(frame, gamma)
         if clamped:
             info["clamped"] = True
-        return [FrameResult(frame=apply_gamma(frame, gamma), gamma=gamma, info=info)]
+        return [FrameResult(frame=corrected, gamma=gamma, info=info)]
 
 
 class RecurrentGammaMethod(Method):
@@ -101,7 +127,8 @@ class RecurrentGammaMethod(Method):
             ``"auto"`` (the default) is the size the weights were trained at, from their card, else
             ``DEFAULT_MODEL_SIZE`` (the authors' ``.pth`` has no card).
         device: ``auto | cpu | cuda | cuda:N``.
-        seeds: leading frames passed through unchanged while the state builds (2 in the release).
+        seeds: leading frames passed through unchanged while the state builds; ``None``: the card's
+            ``seed_frames`` (0 for the gain-gamma default, trained to correct every frame), else 2 (the release).
     """
 
     name = "rnn"
@@ -111,12 +138,14 @@ class RecurrentGammaMethod(Method):
         weights: str | Path | LoadedWeights | None = None,
         model_size: int | str | None = "auto",
         device: str = "auto",
-        seeds: int = SEED_FRAMES,
+        seeds: int | None = None,
     ) -> None:
         self.device = resolve_device(device)
         self.weights = weights if isinstance(weights, LoadedWeights) else load_weights(weights)
         self.weights.net.to(self.device).eval()
         self.model_size = parse_model_size(model_size, trained_at=self.weights.input_size)
+        if seeds is None:  # what the weights were trained with (the card), else the release's 2
+            seeds = self.weights.seed_frames if self.weights.seed_frames is not None else SEED_FRAMES
         if seeds < 0:
             raise ValueError(f"seeds must be >= 0, got {seeds}")
         self.seeds = seeds
@@ -125,12 +154,16 @@ class RecurrentGammaMethod(Method):
         return RecurrentGammaStream(self)
 
     def parameters(self) -> dict[str, Any]:
-        return {
+        params: dict[str, Any] = {
             "model_size": self.model_size if self.model_size is not None else "full",
             "seeds": self.seeds,
             "gamma_range": [GAMMA_MIN, GAMMA_MAX],
             "device": str(self.device),
         }
+        if self.weights.head != "gamma":  # older outputs' records stay as they were
+            params["head"] = self.weights.head
+            params["gain_range"] = [GAIN_MIN, GAIN_MAX]
+        return params
 
     def model_info(self) -> dict[str, Any]:
         return {"name": self.weights.name, "sha256": self.weights.sha256}

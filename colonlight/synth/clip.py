@@ -19,7 +19,7 @@ from .config import SynthConfig
 from .disturb import LightingSchedule, plan_lighting
 from .geometry import Tube
 from .noise import stream
-from .render import Shader, sensor, to_uint8
+from .render import Shader, response, sensor, to_uint8
 from .texture import WallTexture
 
 PREVIEW_PX = 32
@@ -93,8 +93,9 @@ def render_frame(scene: Scene, i: int) -> SynthFrame:
     rad = scene.shader.render(scene.path.positions[i], scene.path.rotations[i], scene.path.light_offset_cam)
     noise = stream(scene.seed, "noise", i).standard_normal((cfg.height, cfg.width, 3), dtype=np.float32)
     y = sensor(cfg, rad.rgb, scene.lighting.clean_exposure, noise, scene.shader.field)
-    clean = to_uint8(y)
-    image = clean.copy() if not scene.lighting.disturbed(i) else to_uint8(scene.lighting.apply(i, y))
+    clean = to_uint8(response(y, cfg.response_shoulder))
+    disturbed = scene.lighting.disturbed(i)
+    image = clean.copy() if not disturbed else to_uint8(scene.lighting.apply(i, y, cfg.response_shoulder))
     return SynthFrame(
         index=i,
         time_s=i / cfg.fps,

@@ -32,74 +32,77 @@ class ParamSpec:
 PARAM_SPECS: dict[str, ParamSpec] = {
     # geometry
     "radius_mm": ParamSpec((13.0, 24.0), ((24.0, 32.0), (10.0, 13.0)), log=True),
-    "radius_var": ParamSpec((0.0, 0.15)),
+    "radius_var": ParamSpec((0.0, 0.15), ((0.15, 0.25),)),
     "triangularity": ParamSpec((0.0, 0.14), ((0.14, 0.2),)),
-    "ellipticity": ParamSpec((0.0, 0.12)),
-    "twist_deg_per_100mm": ParamSpec((-40.0, 40.0)),
+    "ellipticity": ParamSpec((0.0, 0.12), ((0.12, 0.2),)),
+    "twist_deg_per_100mm": ParamSpec((-40.0, 40.0), ((40.0, 60.0), (-60.0, -40.0))),
     "fold_spacing_mm": ParamSpec((16.0, 36.0), ((36.0, 50.0), (11.0, 16.0)), log=True),
-    "fold_spacing_jitter": ParamSpec((0.0, 0.35)),
+    "fold_spacing_jitter": ParamSpec((0.0, 0.35), ((0.35, 0.5),)),
     "fold_depth": ParamSpec((0.12, 0.45), ((0.45, 0.6), (0.05, 0.12))),
-    "fold_depth_var": ParamSpec((0.0, 0.5)),
+    "fold_depth_var": ParamSpec((0.0, 0.5), ((0.5, 0.7),)),
     "fold_width_mm": ParamSpec((1.5, 4.5), ((4.5, 7.0),), log=True),
     "fold_sharpness": ParamSpec((1.4, 2.6), ((1.0, 1.4), (2.6, 3.5))),
-    "fold_taenia": ParamSpec((0.0, 0.9)),
-    "fold_asym": ParamSpec((0.0, 0.5)),
-    "fold_tilt": ParamSpec((0.0, 0.25)),
-    "fold_gap_prob": ParamSpec((0.0, 0.2)),
+    "fold_taenia": ParamSpec((0.0, 0.8), ((0.8, 1.0),)),
+    "fold_asym": ParamSpec((0.0, 0.5), ((0.5, 0.7),)),
+    "fold_tilt": ParamSpec((0.0, 0.25), ((0.25, 0.35),)),
+    "fold_gap_prob": ParamSpec((0.0, 0.2), ((0.2, 0.3),)),
     "bend_amp_mm": ParamSpec((0.0, 30.0), ((30.0, 45.0),)),
-    "bend_wavelength_mm": ParamSpec((150.0, 500.0), log=True),
+    "bend_wavelength_mm": ParamSpec((150.0, 500.0), ((500.0, 700.0), (100.0, 150.0)), log=True),
     # texture
     "hue_deg": ParamSpec((-8.0, 12.0), ((-18.0, -8.0), (12.0, 22.0))),
     "saturation": ParamSpec((0.45, 0.78), ((0.3, 0.45), (0.78, 0.9))),
-    "albedo": ParamSpec((0.6, 0.92)),
-    "mottle": ParamSpec((0.03, 0.2)),
+    "albedo": ParamSpec((0.62, 0.88), ((0.5, 0.62), (0.88, 0.97))),
+    "mottle": ParamSpec((0.03, 0.2), ((0.2, 0.3), (0.01, 0.03))),
     "vessel_density": ParamSpec((0.15, 1.5), ((1.5, 3.0),), log=True),
-    "vessel_contrast": ParamSpec((0.2, 0.8)),
-    "vessel_width_mm": ParamSpec((0.15, 0.6), log=True),
-    "bump": ParamSpec((0.1, 1.0)),
-    "debris": ParamSpec((0.0, 1.0)),
+    "vessel_contrast": ParamSpec((0.2, 0.8), ((0.8, 0.95), (0.1, 0.2))),
+    "vessel_width_mm": ParamSpec((0.15, 0.6), ((0.6, 0.9),), log=True),
+    "bump": ParamSpec((0.1, 1.0), ((1.0, 1.5), (0.03, 0.1))),
+    "debris": ParamSpec((0.0, 0.8), ((0.8, 1.0),)),
     # reflectance and light
     "spec_strength": ParamSpec((0.15, 1.2), ((1.2, 2.0), (0.05, 0.15)), log=True),
     "spec_shininess": ParamSpec((60.0, 500.0), ((500.0, 1200.0), (30.0, 60.0)), log=True),
-    "spec_broad": ParamSpec((0.0, 0.15)),
+    "spec_broad": ParamSpec((0.0, 0.15), ((0.15, 0.25),)),
     "light_falloff": ParamSpec((1.8, 2.2), ((1.6, 1.8), (2.2, 2.4))),
-    "light_spot": ParamSpec((0.0, 2.5)),
-    "light_offset_mm": ParamSpec((0.0, 4.0)),
-    "wrap": ParamSpec((0.0, 0.5)),
+    "light_spot": ParamSpec((0.0, 2.5), ((2.5, 4.0),)),
+    "light_offset_mm": ParamSpec((0.0, 4.0), ((4.0, 6.0),)),
+    "wrap": ParamSpec((0.0, 0.5), ((0.5, 0.7),)),
     # camera and sensor
     "fov_deg": ParamSpec((75.0, 115.0), ((115.0, 135.0), (60.0, 75.0))),
     "vignetting": ParamSpec((0.0, 0.6), ((0.6, 0.9),)),
     "read_noise": ParamSpec((0.001, 0.012), ((0.012, 0.025),), log=True),
-    "shot_noise": ParamSpec((0.0005, 0.01), log=True),
-    "blur_px": ParamSpec((0.0, 0.9)),
+    "shot_noise": ParamSpec((0.0005, 0.01), ((0.01, 0.02),), log=True),
+    "blur_px": ParamSpec((0.0, 0.9), ((0.9, 1.4),)),
     "camera_gamma": ParamSpec((1.9, 2.5), ((1.6, 1.9), (2.5, 2.8))),
-    "wb_r": ParamSpec((0.9, 1.1)),
-    "wb_g": ParamSpec((0.9, 1.1)),
-    "wb_b": ParamSpec((0.9, 1.1)),
-    "exposure_level": ParamSpec((0.45, 0.9)),
+    "wb_r": ParamSpec((0.9, 1.1), ((0.8, 0.9), (1.1, 1.2))),
+    "wb_g": ParamSpec((0.9, 1.1), ((0.8, 0.9), (1.1, 1.2))),
+    "wb_b": ParamSpec((0.9, 1.1), ((0.8, 0.9), (1.1, 1.2))),
+    "exposure_level": ParamSpec((0.5, 0.85), ((0.4, 0.5), (0.85, 0.95))),
     # motion
     # withdrawal during inspection is slow (guidelines ask for >= 6 min over ~1.5 m: ~4 mm/s), insertion and
     # repositioning faster; held out: faster pulls and near-pauses
     "speed_mm_s": ParamSpec((1.5, 20.0), ((20.0, 35.0), (0.7, 1.5)), log=True),
-    "speed_var": ParamSpec((0.0, 0.8)),
-    "lateral": ParamSpec((0.0, 0.45)),
-    "look_var_deg": ParamSpec((2.0, 20.0)),
+    "speed_var": ParamSpec((0.0, 0.8), ((0.8, 1.0),)),
+    "lateral": ParamSpec((0.0, 0.45), ((0.45, 0.6),)),
+    "look_var_deg": ParamSpec((2.0, 20.0), ((20.0, 28.0),)),
     "jitter_deg": ParamSpec((0.1, 1.2), ((1.2, 2.5),), log=True),
-    "roll_rate_deg_s": ParamSpec((-25.0, 25.0)),
-    "roll_var_deg": ParamSpec((0.0, 25.0)),
-    "motion_corr_s": ParamSpec((0.5, 2.5), log=True),
+    "roll_rate_deg_s": ParamSpec((-25.0, 25.0), ((25.0, 40.0), (-40.0, -25.0))),
+    "roll_var_deg": ParamSpec((0.0, 25.0), ((25.0, 35.0),)),
+    "motion_corr_s": ParamSpec((0.5, 2.5), ((2.5, 4.0), (0.3, 0.5)), log=True),
     # lighting disturbances
-    "ae_strength": ParamSpec((0.4, 1.0)),
+    "ae_strength": ParamSpec((0.4, 0.9), ((0.9, 1.1),)),
     "ae_speed": ParamSpec((0.15, 0.6), ((0.6, 0.9), (0.06, 0.15))),
-    "ae_damping": ParamSpec((0.35, 1.2)),
-    "gain_rate_hz": ParamSpec((0.1, 0.8)),
-    "gain_hold_s": ParamSpec((0.1, 1.5), log=True),
-    "contrast_rate_hz": ParamSpec((0.1, 0.6)),
-    "contrast_hold_s": ParamSpec((0.15, 2.0), log=True),
+    "ae_damping": ParamSpec((0.35, 1.2), ((1.2, 1.6), (0.2, 0.35))),
+    "gain_rate_hz": ParamSpec((0.1, 0.8), ((0.8, 1.2),)),
+    "gain_hold_s": ParamSpec((0.1, 1.5), ((1.5, 2.5), (0.05, 0.1)), log=True),
+    "contrast_rate_hz": ParamSpec((0.1, 0.6), ((0.6, 0.9),)),
+    "contrast_hold_s": ParamSpec((0.15, 2.0), ((2.0, 3.0), (0.08, 0.15)), log=True),
     # frame-to-frame flicker (exposure hunting, light-source ripple): std of per-frame log gain / log contrast
     "flicker_gain": ParamSpec((0.015, 0.12), ((0.12, 0.2),), log=True),
     "flicker_contrast": ParamSpec((0.01, 0.08), ((0.08, 0.12),), log=True),
-    "flicker_corr": ParamSpec((0.0, 0.6)),
+    "flicker_corr": ParamSpec((0.0, 0.6), ((0.6, 0.8),)),
+    # camera response: a highlight shoulder on top of the power law (0: a pure power law; render.response).
+    # Last, so that adding it left the draws of every knob above unchanged.
+    "response_shoulder": ParamSpec((0.0, 0.6), ((0.6, 1.2),)),
 }
 
 # Knobs that are switched off in a fraction of sampled clips (value forced to 0).
@@ -112,7 +115,12 @@ _OFF_PROB: dict[str, float] = {
     "flicker_gain": 0.2,
     "flicker_contrast": 0.4,
     "fold_tilt": 0.2,
+    "response_shoulder": 0.4,
 }
+
+#: Chance that a knob with held-out intervals is pushed out of the train range in a held-out clip (at least two
+#: are); with every knob having held-out values, about a third of them are out in each held-out clip.
+HELDOUT_PROB = 0.3
 
 
 @dataclass
@@ -179,6 +187,7 @@ class SynthConfig:
     shot_noise: float = 0.002
     blur_px: float = 0.4
     camera_gamma: float = 2.2
+    response_shoulder: float = 0.0
     wb_r: float = 1.0
     wb_g: float = 1.0
     wb_b: float = 1.0
@@ -230,7 +239,7 @@ class SynthConfig:
         given.
 
         ``split="heldout"``: each knob with held-out intervals goes out of the train range with probability
-        1/2, and at least two do; their names are listed in ``heldout_params``.
+        ``HELDOUT_PROB``, and at least two do; their names are listed in ``heldout_params``.
         """
         if split not in ("train", "heldout"):
             raise ValueError(f"split must be 'train' or 'heldout', got {split!r}")
@@ -238,7 +247,7 @@ class SynthConfig:
         out_names: set[str] = set()
         if split == "heldout":
             cand = [n for n in names if PARAM_SPECS[n].heldout]
-            flags = rng.random(len(cand)) < 0.5
+            flags = rng.random(len(cand)) < HELDOUT_PROB
             if flags.sum() < 2 and len(cand) >= 2:
                 flags[rng.choice(len(cand), size=2, replace=False)] = True
             out_names = {n for n, f in zip(cand, flags, strict=True) if f}
@@ -261,6 +270,8 @@ class SynthConfig:
         direction = -1 if rng.random() < 0.6 else 1
         ae_delay = int(rng.integers(1, 4))
         mask = float(rng.uniform(1.0, 1.35)) if rng.random() < 0.35 else 0.0
+        if split == "heldout" and rng.random() < 0.3:  # a tighter field stop than training ever draws
+            mask = float(rng.uniform(0.8, 1.0))
         values.setdefault("direction", direction)
         values.setdefault("ae_delay", ae_delay)
         values.setdefault("mask_radius", mask)

@@ -2,7 +2,7 @@
 
 Model (display domain, ``y`` = the clean frame before 8-bit clipping, see ``render.sensor``)::
 
-    image_t = clip( gain_t * (exposure_t ** (1 / camera_gamma) * y) ** contrast_t )
+    image_t = clip( gain_t * f(exposure_t ** (1 / camera_gamma) * y) ** contrast_t )   (f: the response's shoulder)
             = clip( display_gain_t * y ** contrast_t ),
     display_gain_t = gain_t * exposure_t ** (contrast_t / camera_gamma)
     clean_t = clip( y )
@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from .config import SynthConfig
+from .render import response
 
 GAIN_RANGE = (0.4, 2.5)
 CONTRAST_RANGE = (0.6, 1.6)
@@ -70,13 +71,17 @@ class LightingSchedule:
             "disturbed": self.disturbed(i),
         }
 
-    def apply(self, i: int, y: np.ndarray) -> np.ndarray:
-        """The disturbed display-domain frame from the clean one (unclipped)."""
+    def apply(self, i: int, y: np.ndarray, shoulder: float = 0.0) -> np.ndarray:
+        """The disturbed display-domain frame (unclipped) from the clean power-law output ``y`` (before the
+        response's shoulder): exposure acts on linear light, so it goes in before the shoulder; gain and the
+        contrast power curve act on the display signal after it."""
         k = np.float32(self.contrast[i])
-        g = np.float32(self.display_gain(i))
-        if k == 1:
-            return y * g
-        return g * np.power(y, k)
+        if shoulder == 0:
+            g = np.float32(self.display_gain(i))
+            return y * g if k == 1 else g * np.power(y, k)
+        exposed = response(y * np.float32(self.exposure[i] ** (1.0 / self.camera_gamma)), shoulder)
+        g = np.float32(self.gain[i])
+        return exposed * g if k == 1 else g * np.power(exposed, k)
 
 
 def plan_lighting(

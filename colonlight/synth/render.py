@@ -10,7 +10,9 @@ lobe on bump-mapped normals for wet glints. No shadows: the light sits next to t
 anyway.
 
 Sensor: ``v = clean_exposure * L * white_balance`` (optionally blurred by the optics), plus shot and read
-noise, then the display tone curve ``y = v ** (1 / camera_gamma)``; ``y = 1`` is white.
+noise, then the camera's response: the power law ``y = v ** (1 / camera_gamma)`` followed by a highlight shoulder
+``f(y) = y (1 + s) / (1 + s y)`` (``s = response_shoulder``; 0 is a pure power law); ``y = 1`` is white. Real
+cameras' response curves are neither pure power laws nor known, so the shoulder varies per clip.
 """
 
 from __future__ import annotations
@@ -150,6 +152,18 @@ def sensor(
     if field is not None:
         y *= field[..., None]
     return y
+
+
+def response(y: np.ndarray, shoulder: float) -> np.ndarray:
+    """The camera response's highlight shoulder on the power-law output ``y`` (identity for ``shoulder = 0``).
+
+    ``f(y) = y (1 + s) / (1 + s y)``: f(0) = 0, f(1) = 1, increasing, slope ``1 + s`` at black (lifted shadows)
+    and ``1 / (1 + s)`` at white (compressed highlights).
+    """
+    if shoulder == 0:
+        return y
+    s = np.float32(shoulder)
+    return y * (1 + s) / (1 + s * np.maximum(y, 0))
 
 
 def to_uint8(y: np.ndarray) -> np.ndarray:

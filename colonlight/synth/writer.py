@@ -261,6 +261,7 @@ def make_dataset(
     video: bool = False,
     steady_fraction: float = 0.0,
     occluder_fraction: float = 0.0,
+    clean_seeds_fraction: float = 0.0,
     **overrides: Any,
 ) -> list[Path]:
     """Render ``n_clips`` clips into ``out_dir/clip_00000`` ...; clip i uses seed ``seed + i`` and a config
@@ -269,7 +270,8 @@ def make_dataset(
     on them sees that steady lighting, with the scene's own brightness changes, is to be left alone.
     About ``occluder_fraction`` of the clips (chosen by their seeds, independently) are forced to have a close
     occluder moment, the paper's failure case: a wall that is bright because it is near, not because the
-    exposure jumped.
+    exposure jumped. About ``clean_seeds_fraction`` of the clips (chosen by their seeds, independently) start
+    with two undisturbed frames, as the evaluation's clips do.
 
     Finished clips with the same config and seed are kept (an interrupted run resumes). Use disjoint seed
     ranges for train and held-out sets.
@@ -284,6 +286,8 @@ def make_dataset(
             over.setdefault("steady", True)
         if occluder_fraction > 0 and np.random.default_rng([s, 3]).random() < occluder_fraction:
             over.setdefault("close_occluder", "force")
+        if clean_seeds_fraction > 0 and np.random.default_rng([s, 4]).random() < clean_seeds_fraction:
+            over.setdefault("undisturbed_seeds", True)
         cfg = SynthConfig.sample(
             rng, split=split, width=width, height=height, n_frames=n_frames, fps=fps, **over
         )
