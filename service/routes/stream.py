@@ -128,7 +128,9 @@ class Pending:
 
 
 def finite(value: Any) -> Any:
-    """JSON has no NaN or infinity: such a float (a network output gone wrong) is sent as null."""
+    """JSON has no NaN or infinity: such a float (a network output gone wrong) is sent as null, in lists too."""
+    if isinstance(value, (list, tuple)):
+        return [finite(v) for v in value]
     return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
