@@ -1,4 +1,4 @@
-"""Run the benchmarks: `python -m benchmarks [input_size] [enhance] [service] [stream] [quality_gate] [objective_landscape] [onnx_step]` (default: all).
+"""Run the benchmarks: `python -m benchmarks [input_size] [enhance] [service] [stream] [ws_stream] [quality_gate] [objective_landscape] [onnx_step]` (default: all).
 
 Options after a name go to that benchmark: `python -m benchmarks quality_gate --json gate.json`.
 """
@@ -14,6 +14,7 @@ BENCHMARKS = {
     "enhance": "benchmarks.enhance_vs_ffmpeg",
     "service": "benchmarks.service_load",
     "stream": "benchmarks.stream_realtime",
+    "ws_stream": "benchmarks.ws_stream",
     "quality_gate": "benchmarks.quality_gate",
     "objective_landscape": "benchmarks.objective_landscape",
     "onnx_step": "benchmarks.onnx_step",

@@ -11,7 +11,8 @@ def serve(
     host: str | None = typer.Option(None, "--host", help="Address to bind (default COLONLIGHT_HOST or 127.0.0.1)."),
     port: int | None = typer.Option(None, "--port", min=0, max=65535, help="Port (default COLONLIGHT_PORT or 8000)."),
 ) -> None:
-    """Serve the API (/v1/jobs, /v1/enhance, /healthz, /readyz, /metrics) and the web page at / with uvicorn.
+    """Serve the API (/v1/jobs, /v1/enhance, /v1/stream, /healthz, /readyz, /metrics) and the web page at /
+    with uvicorn.
 
     Other settings come from the environment: COLONLIGHT_DATA_DIR, COLONLIGHT_WORKERS, COLONLIGHT_QUEUE_SIZE,
     COLONLIGHT_MAX_UPLOAD_MB, COLONLIGHT_API_KEY, COLONLIGHT_WEIGHTS, COLONLIGHT_DEVICE, ... (see the README).
@@ -46,6 +47,8 @@ def serve(
         log_config=log_config,
         server_header=False,
         timeout_graceful_shutdown=10,
+        ws_max_size=settings.stream_max_frame_bytes,  # /v1/stream: a larger message closes with 1009
+        ws_per_message_deflate=False,  # /v1/stream carries JPEG/PNG, which deflate cannot shrink: spare the CPU
     )
 
 

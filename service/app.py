@@ -18,7 +18,7 @@ from .deps import Authenticated
 from .errors import JsonErrorGuard, install_error_handlers
 from .jobs import JobManager
 from .memory import limit_malloc_arenas
-from .routes import enhance, health, jobs, metrics, page
+from .routes import enhance, health, jobs, metrics, page, stream
 from .settings import Settings
 
 DESCRIPTION = """\
@@ -28,6 +28,8 @@ The same engine and per-clip pipeline as `colonlight enhance`.
 * `POST /v1/jobs` a clip (multipart, field `file`) -> 202 + `Location`; poll `GET /v1/jobs/{id}`;
   download `/video` (H.264 mp4, range requests), `/gammas` (gammas.json), `/frames.zip`; `DELETE` when done.
 * `POST /v1/enhance` for short clips: gammas and video in one response.
+* `/v1/stream` (WebSocket) for live video: JPEG/PNG frames in, a gamma record and the enhanced frame out for
+  each, one recurrent state per connection (protocol in the README, "Live streams over a WebSocket").
 * When the server has an API key, send it as `X-API-Key: <key>` or `Authorization: Bearer <key>`
   (not needed for `/healthz` and `/readyz`).
 * Every error is JSON: `{"status", "code", "message"}`.
@@ -66,9 +68,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     app.state.manager = manager
+    app.state.stream_slots = stream.StreamSlots(settings.stream_max)
     install_error_handlers(app)
     app.add_middleware(JsonErrorGuard)
-    for module in (health, jobs, enhance, metrics, page):
+    for module in (health, jobs, enhance, stream, metrics, page):
         app.include_router(module.router)
     app.mount("/static", StaticFiles(directory=page.STATIC), name="static")
 

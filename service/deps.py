@@ -30,18 +30,26 @@ SettingsDep = Annotated[Settings, Depends(get_settings)]
 ManagerDep = Annotated[JobManager, Depends(get_manager)]
 
 
+def key_is_valid(settings: Settings, *offered: str | None) -> bool:
+    """True when the server has no key, or one of ``offered`` is it (compared in constant time).
+
+    The one key check of the service: the HTTP routes (through :func:`require_api_key`) and the WebSocket route
+    (headers, or its start message for browsers, which cannot set headers on a WebSocket) both use it.
+    """
+    if settings.api_key is None:
+        return True
+    expected = settings.api_key.get_secret_value().encode()
+    return any(key is not None and secrets.compare_digest(key.encode(), expected) for key in offered)
+
+
 def require_api_key(
     settings: SettingsDep,
     api_key: Annotated[str | None, Security(_api_key_header)] = None,
     bearer: Annotated[HTTPAuthorizationCredentials | None, Security(_bearer)] = None,
 ) -> None:
     """401 unless the request carries the server's key (when one is set) as X-API-Key or a Bearer token."""
-    if settings.api_key is None:
+    if key_is_valid(settings, api_key, bearer.credentials if bearer is not None else None):
         return
-    expected = settings.api_key.get_secret_value().encode()
-    for offered in (api_key, bearer.credentials if bearer is not None else None):
-        if offered is not None and secrets.compare_digest(offered.encode(), expected):
-            return
     raise ApiError(401, "unauthorized",
                    "this server requires an API key: send it as an X-API-Key header or as Authorization: Bearer <key>",
                    {"WWW-Authenticate": "Bearer", "Connection": "close"})  # close: never read a refused upload

@@ -61,6 +61,13 @@ class Settings(BaseSettings):
     torch_threads: int | None = Field(None, ge=1, description="torch intra-op threads (default: cores / workers).")
     log_level: str = Field("info", description="uvicorn log level.")
     malloc_arena_max: int = Field(2, ge=0, description="glibc malloc arenas (0: glibc's default); keeps memory flat.")
+    stream_max: int = Field(4, ge=0, le=256, description="WebSocket streams (/v1/stream) open at once; more are "
+                            "refused with close code 1013 (0 turns the route off).")
+    stream_max_frame_mb: float = Field(16.0, gt=0, le=1024, description="Largest WebSocket message (one frame) in "
+                                       "MiB; a larger one closes the stream with code 1009.")
+    stream_idle_seconds: float = Field(60.0, gt=0, description="A stream with no message for this long is closed (1001).")
+    stream_send_timeout_seconds: float = Field(30.0, gt=0, description="A stream whose client reads no answer for "
+                                               "this long is dropped: a slow client holds one answer, no more.")
 
     @field_validator("api_key", mode="before")
     @classmethod
@@ -75,6 +82,10 @@ class Settings(BaseSettings):
     @property
     def max_upload_bytes(self) -> int:
         return int(self.max_upload_mb * 1024 * 1024)
+
+    @property
+    def stream_max_frame_bytes(self) -> int:
+        return int(self.stream_max_frame_mb * 1024 * 1024)
 
     @property
     def capacity(self) -> int:

@@ -43,6 +43,7 @@ async def info(manager: ManagerDep) -> ServiceInfo:
         defaults={"method": s.method, "fps": s.fps, "model_size": s.model_size, "format": "png", "quality": 95,
                   "frames": True, "model": manager.model_info},
         limits={"max_upload_mb": s.max_upload_mb, "sync_max_seconds": s.sync_max_seconds,
-                "result_ttl_seconds": s.result_ttl_seconds, "workers": s.workers, "queue_size": s.queue_size},
+                "result_ttl_seconds": s.result_ttl_seconds, "workers": s.workers, "queue_size": s.queue_size,
+                "stream_max": s.stream_max, "stream_max_frame_mb": s.stream_max_frame_mb},
         auth_required=s.api_key is not None,
     )

@@ -1,0 +1,376 @@
+"""``/v1/stream``: live enhancement over a WebSocket, one recurrent state per connection.
+
+Protocol (version 1; every text message is a JSON object with a ``type``):
+
+* client -> ``{"type": "start", "method": "rnn", "model_size": "48", "gamma": null, "format": "jpeg",
+  "quality": 90, "frames": true, "api_key": "..."}``: optional, first; every field optional. Without it the
+  server's defaults apply from the first frame on. ``api_key`` is for browsers, which cannot set headers on a
+  WebSocket; other clients send ``X-API-Key`` or ``Authorization: Bearer`` as on every route.
+* server -> ``{"type": "ready", "method", "model", "parameters", "format", "frames", "max_pixels",
+  "max_frame_bytes"}``: before the first result.
+* client -> a binary message: one frame, JPEG or PNG bytes. To give it a timestamp (or any number to match it
+  by), send ``{"type": "frame", "time": 12.34}`` just before it; ``time`` is echoed in its result.
+* server -> per frame, in order: ``{"type": "result", "index", "time", "gamma", "a", "seed", "clamped", "width",
+  "height", "received", "latency_ms", "format", "bytes"}``, then (unless ``frames`` is false) one binary
+  message: the enhanced frame in ``format``. ``received`` is the server's wall clock (Unix seconds) when the
+  frame arrived, ``latency_ms`` the time from then to sending this record.
+* server -> ``{"type": "error", "code", "message", "index"?}`` for a frame it cannot use (``bad_frame``: not a
+  JPEG/PNG, corrupt, over the pixel cap) or a bad message (``bad_message``); the frame is skipped, the stream
+  and its state go on.
+* client -> ``{"type": "end"}``: the server answers frames still held back, sends ``{"type": "end", "frames",
+  "errors"}`` and closes with 1000.
+
+Close codes: 1000 after ``end``; 1001 idle for ``COLONLIGHT_STREAM_IDLE_SECONDS``; 1008 no or wrong API key, bad
+start options, or streams turned off; 1009 a message over ``COLONLIGHT_STREAM_MAX_FRAME_MB`` (uvicorn); 1011
+internal error (logged; no traceback is sent); 1013 ``COLONLIGHT_STREAM_MAX`` streams are open already. Each
+close but 1009 is preceded by an ``error`` message saying why.
+
+Memory: the server reads a client's next message only after it has sent the answers to the previous one, and
+uvicorn stops reading the socket while a message waits, so a client that does not read its answers is pushed
+back through TCP and costs one frame and one answer; one that has read nothing for
+``COLONLIGHT_STREAM_SEND_TIMEOUT_SECONDS`` is dropped, freeing its place.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import math
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import anyio
+from fastapi import APIRouter, WebSocket
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from starlette.websockets import WebSocketDisconnect
+
+from colonlight.errors import ColonlightError
+from colonlight.methods import FrameResult, MethodStream
+
+from ..deps import key_is_valid
+from ..errors import ApiError
+from ..jobs import JobManager
+from ..schemas import JobOptions
+from ..settings import Settings
+from ..stream_frames import FrameError, decode_frame, encode_frame, max_pixels
+
+log = logging.getLogger("colonlight.service")
+router = APIRouter()
+
+CLOSE_NORMAL = 1000
+CLOSE_IDLE = 1001
+CLOSE_POLICY = 1008
+CLOSE_INTERNAL = 1011
+CLOSE_BUSY = 1013
+
+
+class StreamStart(BaseModel):
+    """The optional first message: the stream's options (the enhancement options of a job, plus the answer's)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    type: Literal["start"]
+    api_key: str | None = Field(None, description="The server's key, for clients that cannot send headers.")
+    method: str | None = None
+    model_size: str | int | None = None
+    gamma: float | None = None
+    format: Literal["jpeg", "png"] = Field("jpeg", description="Format of the enhanced frames sent back.")
+    quality: int = Field(90, ge=1, le=100, description="JPEG quality of the frames sent back.")
+    frames: bool = Field(True, description="Send the enhanced frames (false: the gamma records only).")
+
+    def job_options(self) -> JobOptions:
+        """The enhancement options, validated exactly as a job's are (ValidationError)."""
+        size = None if self.model_size is None else str(self.model_size)
+        return JobOptions(method=self.method, model_size=size, gamma=self.gamma)
+
+
+class StreamSlots:
+    """Streams open at once, at most ``limit`` (one event loop: no lock needed)."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
+        self.open = 0
+
+    def take(self) -> bool:
+        if self.open >= self.limit:
+            return False
+        self.open += 1
+        return True
+
+    def give_back(self) -> None:
+        self.open -= 1
+
+
+class Closing(Exception):
+    """End the stream: send ``{"type": "error", code, message}``, then close with ``close_code``."""
+
+    def __init__(self, close_code: int, code: str, message: str, reason: str) -> None:
+        super().__init__(message)
+        self.close_code, self.code, self.message, self.reason = close_code, code, message, reason
+
+
+class ClientGone(Exception):
+    """The client disconnected, or read nothing for the send timeout: leave without a close handshake."""
+
+
+@dataclass
+class Pending:
+    """A frame pushed into the method whose result has not been sent yet (methods may hold frames back)."""
+
+    index: int
+    time: float | None
+    received: float
+    width: int
+    height: int
+
+
+def finite(value: Any) -> Any:
+    """JSON has no NaN or infinity: such a float (a network output gone wrong) is sent as null, in lists too."""
+    if isinstance(value, (list, tuple)):
+        return [finite(v) for v in value]
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+def short_errors(exc: ValidationError) -> str:
+    return "; ".join(f"{'.'.join(str(p) for p in e['loc']) or 'message'}: {e['msg']}" for e in exc.errors())
+
+
+class StreamSession:
+    """One connection: its options, its method stream (the recurrent state) and its counters."""
+
+    def __init__(self, ws: WebSocket, settings: Settings, manager: JobManager) -> None:
+        self.ws = ws
+        self.settings = settings
+        self.manager = manager
+        self.options: StreamStart | None = None
+        self.stream: MethodStream | None = None
+        self.pending: deque[Pending] = deque()
+        self.pixel_limit = max_pixels()
+        self.next_time: float | None = None
+        self.messages = self.frames_in = self.frames_out = self.errors = 0
+
+    # ------------------------------------------------------------------------------------------ transport
+
+    async def send(self, message: dict[str, Any] | bytes) -> None:
+        payload: dict[str, Any] = (
+            {"type": "websocket.send", "bytes": message} if isinstance(message, bytes)
+            else {"type": "websocket.send", "text": json.dumps(message, allow_nan=False)}
+        )
+        try:
+            await asyncio.wait_for(self.ws.send(payload), self.settings.stream_send_timeout_seconds)
+        except asyncio.TimeoutError:
+            raise ClientGone(f"read nothing for {self.settings.stream_send_timeout_seconds:g} s") from None
+        except (WebSocketDisconnect, OSError, RuntimeError):
+            raise ClientGone("disconnected") from None
+
+    async def receive(self) -> dict[str, Any]:
+        idle = self.settings.stream_idle_seconds
+        try:
+            message: dict[str, Any] = await asyncio.wait_for(self.ws.receive(), idle)
+        except asyncio.TimeoutError:
+            raise Closing(CLOSE_IDLE, "idle", f"no message for {idle:g} s (COLONLIGHT_STREAM_IDLE_SECONDS)",
+                          f"idle for {idle:g} s") from None
+        except (WebSocketDisconnect, OSError, RuntimeError):
+            raise ClientGone("disconnected") from None
+        if message["type"] == "websocket.disconnect":
+            raise ClientGone(f"disconnected ({message.get('code')})")
+        self.messages += 1
+        return message
+
+    async def close(self, code: int, reason: str) -> None:
+        try:
+            await asyncio.wait_for(self.ws.close(code, reason[:120]), self.settings.stream_send_timeout_seconds)
+        except (asyncio.TimeoutError, WebSocketDisconnect, OSError, RuntimeError):
+            pass
+
+    # ------------------------------------------------------------------------------------------ protocol
+
+    @staticmethod
+    def parse_text(text: str) -> dict[str, Any]:
+        try:
+            value = json.loads(text)
+        except ValueError:
+            raise FrameError(f"a text message must be a JSON object, got {text[:60]!r}") from None
+        if not isinstance(value, dict) or not isinstance(value.get("type"), str):
+            raise FrameError('a text message must be a JSON object with a "type" ("start", "frame" or "end")')
+        return value
+
+    async def start(self, options: StreamStart) -> None:
+        """Build (or fetch) the method for ``options`` and a fresh stream of it; send ``ready``."""
+        try:
+            spec = self.manager.method_spec(options.job_options())
+            await self.manager.check_method(spec)
+            method = await anyio.to_thread.run_sync(self.manager.methods.get, spec)
+        except ValidationError as exc:
+            raise Closing(CLOSE_POLICY, "validation_error", f"bad start options: {short_errors(exc)}",
+                          "bad start options") from None
+        except ApiError as exc:
+            close = CLOSE_POLICY if exc.status == 422 else CLOSE_INTERNAL
+            raise Closing(close, exc.code, exc.message, exc.code) from None
+        except (ColonlightError, ValueError) as exc:
+            raise Closing(CLOSE_INTERNAL, "model_unavailable", f"the model could not be loaded: {exc}",
+                          "model unavailable") from None
+        self.options = options
+        self.stream = method.stream()
+        await self.send({
+            "type": "ready", "method": method.name, "model": method.model_info(), "parameters": method.parameters(),
+            "format": options.format, "frames": options.frames, "max_pixels": self.pixel_limit,
+            "max_frame_bytes": self.settings.stream_max_frame_bytes,
+        })
+
+    async def handle_text(self, message: dict[str, Any]) -> bool:
+        """Act on a control message; False once the client has ended the stream."""
+        kind = message["type"]
+        if kind == "start":
+            if self.options is not None:
+                raise FrameError('"start" must be the first message; this stream has started already')
+            try:
+                await self.start(StreamStart.model_validate(message))
+            except ValidationError as exc:
+                raise Closing(CLOSE_POLICY, "validation_error", f"bad start options: {short_errors(exc)}",
+                              "bad start options") from None
+        elif kind == "frame":
+            t = message.get("time")
+            if t is not None and (isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t)):
+                raise FrameError(f'"time" must be a finite number, got {t!r}')
+            self.next_time = None if t is None else float(t)
+        elif kind == "end":
+            if self.stream is not None:
+                results = await anyio.to_thread.run_sync(self.stream.flush)
+                await self.send_results(results)
+            await self.send({"type": "end", "frames": self.frames_out, "errors": self.errors})
+            return False
+        else:
+            raise FrameError(f'unknown message type {kind!r}; expected "start", "frame" or "end"')
+        return True
+
+    async def handle_frame(self, data: bytes, received: float) -> None:
+        if self.options is None:
+            await self.start(StreamStart(type="start"))
+        assert self.stream is not None
+        stream, limit, t = self.stream, self.pixel_limit, self.next_time
+        self.next_time = None
+
+        def decode_and_push() -> tuple[Pending, list[FrameResult]]:
+            frame = decode_frame(data, limit)
+            meta = Pending(self.frames_in, t, received, frame.shape[1], frame.shape[0])
+            try:
+                return meta, stream.push(frame)
+            except FrameError:
+                raise
+            except (ColonlightError, ValueError) as exc:  # e.g. a method that needs every frame the same size
+                raise FrameError(str(exc)) from None
+
+        meta, results = await anyio.to_thread.run_sync(decode_and_push)
+        self.frames_in += 1
+        self.pending.append(meta)
+        await self.send_results(results)
+
+    async def send_results(self, results: list[FrameResult]) -> None:
+        assert self.options is not None
+        opts = self.options
+        for res in results:
+            meta = self.pending.popleft()
+            payload = (await anyio.to_thread.run_sync(encode_frame, res.frame, opts.format, opts.quality)
+                       if opts.frames else None)
+            record: dict[str, Any] = {
+                "type": "result", "index": meta.index, "time": meta.time, "gamma": finite(res.gamma),
+                **{k: finite(v) for k, v in res.info.items()},
+                "width": meta.width, "height": meta.height, "received": round(meta.received, 6),
+                "latency_ms": round((time.time() - meta.received) * 1000, 3),
+                "format": opts.format if opts.frames else None, "bytes": len(payload) if payload else 0,
+            }
+            await self.send(record)
+            if payload is not None:
+                await self.send(payload)
+            self.frames_out += 1
+            self.manager.metrics.inc("frames")
+
+    async def run(self, first: dict[str, Any] | None = None) -> None:
+        """Messages in, answers out, one at a time (the next message is read only once this one is answered)."""
+        while True:
+            message, first = (first, None) if first is not None else (await self.receive(), None)
+            received = time.time()
+            try:
+                if message.get("bytes") is not None:
+                    await self.handle_frame(message["bytes"], received)
+                elif not await self.handle_text(self.parse_text(message.get("text") or "")):
+                    return
+            except FrameError as exc:
+                self.errors += 1
+                if message.get("bytes") is not None:
+                    error = {"type": "error", "code": "bad_frame", "message": f"message {self.messages}: {exc}"}
+                else:
+                    error = {"type": "error", "code": "bad_message", "message": f"message {self.messages}: {exc}"}
+                await self.send(error)
+
+
+def header_key_ok(ws: WebSocket, settings: Settings) -> bool:
+    """The key rule of every route: ``X-API-Key: <key>`` or ``Authorization: Bearer <key>``."""
+    bearer = ws.headers.get("authorization", "")
+    offered = [ws.headers.get("x-api-key"), bearer[7:].strip() if bearer[:7].lower() == "bearer " else None]
+    return key_is_valid(settings, *offered)
+
+
+def start_key(message: dict[str, Any]) -> str | None:
+    """The ``api_key`` of a first message that is a JSON start message, else None."""
+    try:
+        value = json.loads(message.get("text") or "null")
+    except ValueError:
+        return None
+    key = value.get("api_key") if isinstance(value, dict) and value.get("type") == "start" else None
+    return key if isinstance(key, str) else None
+
+
+@router.websocket("/v1/stream")
+async def stream(ws: WebSocket) -> None:
+    settings: Settings = ws.app.state.settings
+    manager: JobManager = ws.app.state.manager
+    slots: StreamSlots = ws.app.state.stream_slots
+    await ws.accept()
+    session = StreamSession(ws, settings, manager)
+    holding = False
+    close: tuple[int, str] | None = None
+    try:
+        first: dict[str, Any] | None = None
+        if not header_key_ok(ws, settings):  # a browser: the key may come in the start message
+            first = await session.receive()
+            if not key_is_valid(settings, start_key(first)):
+                raise Closing(CLOSE_POLICY, "unauthorized",
+                              "this server requires an API key: send it as an X-API-Key header, as Authorization: "
+                              'Bearer <key>, or as "api_key" in the start message', "unauthorized")
+        if settings.stream_max == 0:
+            raise Closing(CLOSE_POLICY, "streams_off", "streams are turned off on this server (COLONLIGHT_STREAM_MAX=0)",
+                          "streams are turned off")
+        if not slots.take():
+            manager.metrics.inc("rejected", "streams_full")
+            raise Closing(CLOSE_BUSY, "busy",
+                          f"the server has {slots.limit} streams open, its limit (COLONLIGHT_STREAM_MAX); try again later",
+                          f"busy: {slots.limit} streams open, try again later")
+        holding = True
+        await session.run(first)
+        close = (CLOSE_NORMAL, "end of stream")
+    except Closing as exc:
+        try:
+            await session.send({"type": "error", "code": exc.code, "message": exc.message})
+            close = (exc.close_code, exc.reason)
+        except ClientGone:
+            pass
+    except ClientGone as exc:
+        log.info("stream ended after %d frames: client %s", session.frames_out, exc)
+    except Exception:  # noqa: BLE001 - a bug ends this stream, never the server; the client gets no traceback
+        log.exception("stream failed after %d frames", session.frames_out)
+        try:
+            await session.send({"type": "error", "code": "internal_error",
+                                "message": "internal error; see the server log"})
+            close = (CLOSE_INTERNAL, "internal error")
+        except ClientGone:
+            pass
+    finally:
+        if holding:
+            slots.give_back()  # before the close frame: a client that reconnects on it finds its place free
+    if close is not None:
+        await session.close(*close)

@@ -1,0 +1,103 @@
+"""Frames of the WebSocket stream: JPEG/PNG bytes in, RGB arrays out and back, with the pixel cap checked from
+the image header before anything is decoded (a small PNG can claim 8000 x 8000 and decode to 192 MB)."""
+
+from __future__ import annotations
+
+import os
+import struct
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from colonlight.limits import DEFAULT_MAX_PIXELS, MAX_PIXELS_ENV
+
+ImageFormat = Literal["jpeg", "png"]
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+JPEG_SIGNATURE = b"\xff\xd8"
+# Start-of-frame markers carry the size; 0xC4 (DHT), 0xC8 (JPG) and 0xCC (DAC) share the range but are not SOFs.
+_JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+_JPEG_NO_LENGTH = frozenset({0x01, *range(0xD0, 0xD9)})  # TEM, RSTn, SOI, EOI: markers without a length field
+
+
+class FrameError(ValueError):
+    """A frame that cannot be used: the message says why, in one line, for the client."""
+
+
+def max_pixels() -> int:
+    """The pixel cap: ``COLONLIGHT_MAX_PIXELS`` when set (the CLI and service share it), else the default."""
+    value = os.environ.get(MAX_PIXELS_ENV, "").strip()
+    return int(value) if value.isdigit() and int(value) > 0 else DEFAULT_MAX_PIXELS
+
+
+@dataclass(frozen=True)
+class ImageHeader:
+    format: ImageFormat
+    width: int
+    height: int
+
+
+def _jpeg_size(data: bytes) -> tuple[int, int]:
+    pos = 2
+    while pos + 4 <= len(data):
+        if data[pos] != 0xFF:
+            raise FrameError("not a valid JPEG: a marker was expected")
+        marker = data[pos + 1]
+        if marker == 0xFF:  # fill byte
+            pos += 1
+            continue
+        if marker in _JPEG_NO_LENGTH:
+            pos += 2
+            continue
+        (length,) = struct.unpack(">H", data[pos + 2:pos + 4])
+        if marker in _JPEG_SOF:
+            if pos + 9 > len(data):
+                break
+            height, width = struct.unpack(">HH", data[pos + 5:pos + 9])
+            return width, height
+        if marker == 0xDA or length < 2:  # image data before any frame header
+            raise FrameError("not a valid JPEG: no frame header before the image data")
+        pos += 2 + length
+    raise FrameError("truncated JPEG: no frame header")
+
+
+def read_header(data: bytes) -> ImageHeader:
+    """Format and size of a JPEG or PNG from its first bytes, without decoding it (FrameError otherwise)."""
+    if data.startswith(PNG_SIGNATURE):
+        if len(data) < 24 or data[12:16] != b"IHDR":
+            raise FrameError("truncated PNG: no IHDR header")
+        width, height = struct.unpack(">II", data[16:24])
+        return ImageHeader("png", width, height)
+    if data.startswith(JPEG_SIGNATURE):
+        width, height = _jpeg_size(data)
+        return ImageHeader("jpeg", width, height)
+    head = data[:8].hex(" ") if data else "nothing"
+    raise FrameError(f"not a JPEG or PNG image ({len(data)} bytes starting with {head})")
+
+
+def decode_frame(data: bytes, limit: int) -> np.ndarray:
+    """``(H, W, 3)`` uint8 RGB from JPEG/PNG bytes; FrameError for anything else or over ``limit`` pixels."""
+    header = read_header(data)
+    if header.width == 0 or header.height == 0:
+        raise FrameError(f"the {header.format.upper()} is {header.width}x{header.height}: an empty image")
+    if header.width * header.height > limit:
+        raise FrameError(f"the {header.format.upper()} is {header.width}x{header.height} = "
+                         f"{header.width * header.height} pixels, over the limit of {limit} ({MAX_PIXELS_ENV})")
+    bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if bgr is None or bgr.shape[:2] != (header.height, header.width):
+        raise FrameError(f"the {header.format.upper()} ({header.width}x{header.height}) could not be decoded: "
+                         "corrupt or truncated")
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def encode_frame(rgb: np.ndarray, fmt: ImageFormat, quality: int) -> bytes:
+    """JPEG (at ``quality``) or PNG (fast, level 1) bytes of an RGB frame."""
+    bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+    if fmt == "jpeg":
+        ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    else:
+        ok, buf = cv2.imencode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise RuntimeError(f"OpenCV could not encode a {rgb.shape[1]}x{rgb.shape[0]} frame as {fmt}")
+    return buf.tobytes()
