@@ -1,4 +1,4 @@
-"""Run the benchmarks: `python -m benchmarks [input_size] [enhance] [service] [stream] [ws_stream] [quality_gate] [objective_landscape] [onnx_step]` (default: all).
+"""Run the benchmarks: `python -m benchmarks [input_size] [enhance] [service] [stream] [ws_stream] [quality_gate] [objective_landscape] [onnx_step] [model_validation]` (default: all).
 
 Options after a name go to that benchmark: `python -m benchmarks quality_gate --json gate.json`.
 """
@@ -18,6 +18,7 @@ BENCHMARKS = {
     "quality_gate": "benchmarks.quality_gate",
     "objective_landscape": "benchmarks.objective_landscape",
     "onnx_step": "benchmarks.onnx_step",
+    "model_validation": "benchmarks.model_validation",
 }
 
 
