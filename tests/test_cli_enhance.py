@@ -375,16 +375,16 @@ def test_an_abort_from_the_method_stops_the_writers_cleanly(
     clean = tmp_path / "clean"
     pipeline.enhance_clip(clip, clean, create_method("rnn", **options))
 
-    real_predict = RecurrentGammaStream.predict_a
+    real_predict = RecurrentGammaStream.predict
     seen = {"n": 0}
 
-    def predict_then_fail(self: RecurrentGammaStream, frame: np.ndarray) -> float:
+    def predict_then_fail(self: RecurrentGammaStream, frame: np.ndarray) -> list[float]:
         seen["n"] += 1
         if seen["n"] == 20:
             raise KeyboardInterrupt
         return real_predict(self, frame)
 
-    monkeypatch.setattr(RecurrentGammaStream, "predict_a", predict_then_fail)
+    monkeypatch.setattr(RecurrentGammaStream, "predict", predict_then_fail)
     out = tmp_path / "out"
     with pytest.raises(KeyboardInterrupt):
         pipeline.enhance_clip(clip, out, create_method("rnn", **options))
