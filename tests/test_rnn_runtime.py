@@ -41,7 +41,8 @@ def test_enhance_on_onnxruntime_gives_torchs_gammas_and_caches_the_graph(
         records[runtime] = json.loads((out / "clip" / "gammas.json").read_text())
     assert records["onnxruntime"]["parameters"]["runtime"] == "onnxruntime"
     assert "runtime" not in records["torch"]["parameters"]  # torch's records are unchanged by the option
-    a = {r: np.array([f["a"] for f in rec["frames"]]) for r, rec in records.items()}
+    # the head's raw outputs: "a" (gamma head) or "z" (gain-gamma head, the shipped one)
+    a = {r: np.array([f["a"] if "a" in f else f["z"] for f in rec["frames"]], np.float64) for r, rec in records.items()}
     assert a["torch"].std() > 1e-3
     assert np.max(np.abs(a["onnxruntime"] - a["torch"])) <= 1e-5
     gammas = {r: np.array([f["gamma"] for f in rec["frames"]]) for r, rec in records.items()}
