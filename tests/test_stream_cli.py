@@ -131,10 +131,12 @@ def _check_log(records: list[dict], fps_choice: list[int] | None = None) -> None
 # ---------------------------------------------------------------------------------------------- network
 
 
-def test_udp_mpegts_stream(tmp_path: Path, live_clip: Path) -> None:
+def test_udp_mpegts_stream(tmp_path: Path, live_clip: Path, random_weights: Path) -> None:
+    # weights with the paper's head (two seed frames), so that the seed count shows one state for the stream
     port = _port(socket.SOCK_DGRAM)
     out = tmp_path / "out"
-    proc = subprocess.Popen(_colonlight(f"udp://127.0.0.1:{port}", "-o", str(out), "--timeout", "1.5"),
+    proc = subprocess.Popen(_colonlight(f"udp://127.0.0.1:{port}", "-o", str(out), "--timeout", "1.5",
+                                        "--weights", str(random_weights)),
                             env=_env(), stderr=subprocess.PIPE, stdout=subprocess.DEVNULL)
     err = Stderr(proc)
     err.wait_for("waiting for frames")
@@ -159,12 +161,16 @@ def _http_server(clip: Path, port: int) -> subprocess.Popen[bytes]:
                    stderr=subprocess.DEVNULL)
 
 
-def test_http_source_that_stops_and_comes_back_reconnects_with_state_kept(tmp_path: Path, live_clip: Path) -> None:
+def test_http_source_that_stops_and_comes_back_reconnects_with_state_kept(
+    tmp_path: Path, live_clip: Path, random_weights: Path
+) -> None:
+    # weights with the paper's head (two seed frames): two seeds in all prove the state survived the reconnect
     port = _port()
     out = tmp_path / "out"
     server = _http_server(live_clip, port)
     proc = subprocess.Popen(
-        _colonlight(f"http://127.0.0.1:{port}/live.ts", "-o", str(out), "--reconnect", "--timeout", "2", "--keep", "20"),
+        _colonlight(f"http://127.0.0.1:{port}/live.ts", "-o", str(out), "--reconnect", "--timeout", "2", "--keep", "20",
+                    "--weights", str(random_weights)),
         env=_env(), stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
     )
     err = Stderr(proc)
