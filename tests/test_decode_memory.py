@@ -32,17 +32,22 @@ def _colonlight() -> list[str]:
 def run_measured(cmd: list[str], timeout: float = 300) -> tuple[int, str, int]:
     """Run ``cmd``; return its exit code, its stderr and its peak resident memory in bytes (``wait4``'s
     ``ru_maxrss``: the largest of the process and the children it waited for)."""
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    killer = threading.Timer(timeout, proc.kill)
-    killer.start()
+    # Linux carries a process's peak RSS across exec: a child forked from this (large, torch-laden) pytest process
+    # would report pytest's size, not its own. A tiny launcher forks the command and reports the command's peak.
+    launcher = (
+        "import os, subprocess, sys\n"
+        "p = subprocess.Popen(sys.argv[1:], stdout=subprocess.DEVNULL)\n"
+        "_, status, usage = os.wait4(p.pid, 0)\n"
+        "sys.stdout.write(f'{os.waitstatus_to_exitcode(status)} {usage.ru_maxrss}')\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", launcher, *cmd], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
-        assert proc.stderr is not None
-        stderr = proc.stderr.read()  # until the process exits; reaped below by wait4, not by Popen
-        _, status, usage = os.wait4(proc.pid, 0)
-    finally:
-        killer.cancel()
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    return proc.returncode, stderr.decode(errors="replace"), usage.ru_maxrss * 1024
+        stdout, stderr = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise
+    code, maxrss_kib = (int(x) for x in stdout.split())
+    return code, stderr.decode(errors="replace"), maxrss_kib * 1024
 
 
 def test_a_gap_of_an_hour_is_one_run() -> None:
