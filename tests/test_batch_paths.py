@@ -207,18 +207,25 @@ def test_deep_and_looping_trees_end(tmp_path: Path) -> None:
     """A folder 1200 levels deep (deeper than Python's recursion limit) and a loop of folder links."""
     root = tmp_path / "videos"
     root.mkdir()
-    deep = root
-    for _ in range(1200):  # not os.makedirs: it recurses
-        deep = deep / "d"
-        deep.mkdir()
-    make_clip(deep / "c.mp4", n_frames=20, fps=25)
-    (root / "x").mkdir()
-    os.symlink("../y", root / "x" / "to-y")
-    (root / "y").mkdir()
-    os.symlink("../x", root / "y" / "to-x")
-    found = discover([root], tmp_path / "out")
-    assert [len(Path(j.name).parts) for j in found.jobs] == [1201]
-    assert all(not p.failed for p in found.problems) and len(found.problems) == 2
+    levels = [root]
+    try:
+        for _ in range(1200):  # not os.makedirs: it recurses
+            levels.append(levels[-1] / "d")
+            levels[-1].mkdir()
+        make_clip(levels[-1] / "c.mp4", n_frames=20, fps=25)
+        (root / "x").mkdir()
+        os.symlink("../y", root / "x" / "to-y")
+        (root / "y").mkdir()
+        os.symlink("../x", root / "y" / "to-x")
+        found = discover([root], tmp_path / "out")
+        assert [len(Path(j.name).parts) for j in found.jobs] == [1201]
+        assert all(not p.failed for p in found.problems) and len(found.problems) == 2
+    finally:
+        # pytest's clean-up of old temporary folders recurses (shutil.rmtree on Python 3.11) and would overflow
+        # on this tree in a later run, so the tree is taken down here, deepest folder first.
+        (levels[-1] / "c.mp4").unlink(missing_ok=True)
+        for level in reversed(levels[1:]):
+            level.rmdir()
 
 
 def test_dot_and_dotdot_inputs_never_write_outside_their_clip_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
