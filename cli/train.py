@@ -48,6 +48,7 @@ def train_cmd(
     head: str = typer.Option("gamma", "--head", help="gamma (the paper's: one gamma per frame) | gain-gamma (a gain and a gamma per frame)."),
     objective: str = typer.Option("paper", "--objective", help="paper (unsupervised, the paper's loss) | restore (to the clean frames of synthetic clips) | hybrid (both)."),
     consistency: float = typer.Option(0.5, "--consistency", min=0.0, help="Weight of the paper's loss in --objective hybrid."),
+    temporal: float = typer.Option(0.0, "--temporal", min=0.0, help="Weight of the restoration error's frame-to-frame change (--objective restore|hybrid): the output flickers no more than the clean frames."),
     method: str = typer.Option("rnn", "--method", help="rnn (the paper's model) | zerodce | zerodce++ (baselines)."),
     size: int = typer.Option(48, "--size", min=16, help="Training input size (match the inference default, 48)."),
     epochs: int = typer.Option(10, "--epochs", min=1),
@@ -100,7 +101,7 @@ def train_cmd(
     try:
         cfg = TrainConfig(size=size, seq_len=seq_len, stride=stride, batch=batch, lr=lr, epochs=epochs, seed=seed,
                           fps=fps or None, init=init, anchor=anchor, head=head, objective=objective,
-                          consistency=consistency)
+                          consistency=consistency, temporal=temporal)
     except ValueError as exc:
         raise typer.BadParameter(str(exc)) from None
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("loss {task.fields[loss]:.4f}"),

@@ -63,6 +63,7 @@ class TrainConfig:
     head: str = "gamma"  # "gamma" (the paper's) or "gain-gamma" (colonlight.correction)
     objective: str = "paper"  # "paper" (unsupervised) | "restore" (to clean frames) | "hybrid" (both)
     consistency: float = 0.5  # weight of the paper's loss inside "hybrid"
+    temporal: float = 0.0  # weight of the error's frame-to-frame change inside "restore" and "hybrid"
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
@@ -204,6 +205,23 @@ def restore_loss(frames: torch.Tensor, clean: torch.Tensor, out: torch.Tensor, h
     return ((corrected - clean).abs() * keep).sum() / keep.sum().clamp_min(1.0)
 
 
+def temporal_restore_loss(frames: torch.Tensor, clean: torch.Tensor, out: torch.Tensor, head: str) -> torch.Tensor:
+    """Mean over consecutive frames of |change of the mean brightness error| (corrected minus clean, over the
+    samples unclipped in both frames). A per-frame L1 leaves the model free to guess each frame's level
+    independently, and independent guesses flicker; this term asks that whatever error remains stays the same
+    from frame to frame, so the output flickers as the clean frames do and no more."""
+    if frames.shape[1] < 2:
+        return frames.new_zeros(())
+    error = apply_head(frames, out, head) - clean
+    keep = (frames < SATURATED).float()
+    both = keep[:, 1:] * keep[:, :-1]
+    dims = (2, 3, 4)
+    denom = both.sum(dim=dims).clamp_min(1.0)
+    now = (error[:, 1:] * both).sum(dim=dims) / denom
+    before = (error[:, :-1] * both).sum(dim=dims) / denom
+    return (now - before).abs().mean()
+
+
 def paper_loss_any_head(frames: torch.Tensor, out: torch.Tensor, head: str, window: int, anchor: float) -> torch.Tensor:
     """The paper's loss for either head (``sequence_loss`` takes ``a``; the gain-gamma head's frames are
     corrected first and compared the same way)."""
@@ -255,7 +273,10 @@ def batch_loss(net: GammaNet, data: SequenceSet, ids: Sequence[int], cfg: TrainC
     out = net(x)
     if cfg.objective == "paper":
         return paper_loss_any_head(x, out, cfg.head, cfg.ssim_window, anchor)
-    loss = restore_loss(x, data.clean_batch(ids), out, cfg.head)
+    clean = data.clean_batch(ids)
+    loss = restore_loss(x, clean, out, cfg.head)
+    if cfg.temporal:
+        loss = loss + cfg.temporal * temporal_restore_loss(x, clean, out, cfg.head)
     if cfg.objective == "hybrid":
         loss = loss + cfg.consistency * paper_loss_any_head(x, out, cfg.head, cfg.ssim_window, anchor)
     return loss
@@ -328,6 +349,8 @@ def objective_text(cfg: TrainConfig) -> str:
     if cfg.anchor:
         paper += f"; plus {cfg.anchor} x |masked mean shift of the target| (brightness anchor)"
     restore = f"mean |corrected - clean| over input samples below {SATURATED} (every frame a target)"
+    if cfg.temporal:
+        restore += f"; plus {cfg.temporal} x mean |frame-to-frame change of the mean error (corrected - clean)|"
     if cfg.objective == "paper":
         return paper
     if cfg.objective == "restore":
