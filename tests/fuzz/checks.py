@@ -121,6 +121,8 @@ def check_batch(out: Path, console: str, exit_code: int, clips: dict[str, Path],
     no_bug_marks(console, "the console")
     assert exit_code in (0, 1), f"exit {exit_code}:\n{console[-3000:]}"
     assert not temporaries(out), f"temporaries left: {temporaries(out)}"
+    empty = [p for p in out.rglob("*") if p.is_dir() and not any(p.iterdir())]
+    assert not empty, f"empty folders left: {empty}"
     manifest = json.loads((out / "manifest.json").read_text(encoding="utf-8"))
     entries = {e["clip"]: e for e in manifest["clips"]}
     assert set(entries) == set(clips), f"manifest clips {sorted(entries)} != {sorted(clips)}"
