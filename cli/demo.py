@@ -7,8 +7,7 @@ from pathlib import Path
 
 import typer
 
-from colonlight.batch import MethodSpec, discover_clips, run_batch
-from colonlight.pipeline import ClipOptions
+from colonlight import ClipOptions, MethodSpec, discover_clips, run_batch
 
 from .display import BatchDisplay, console, error_line
 

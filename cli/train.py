@@ -27,7 +27,7 @@ def _synthetic_clips(run_dir: Path, n: int, seed: int, frames: int, split: str, 
 
 
 def _clips(paths: list[Path]) -> list[Path]:
-    from colonlight.batch import discover_clips
+    from colonlight import discover_clips
 
     return [j.source for j in discover_clips(paths, Path("."))]
 

@@ -39,9 +39,8 @@ from typing import Any
 import anyio
 
 from colonlight.atomic import write_json_atomic
-from colonlight.batch import ClipJob, ClipOutcome, MethodSpec, estimate_frames
-from colonlight.errors import ColonlightError
-from colonlight.pipeline import GAMMAS_FILE, VIDEO_FILE, ClipOptions
+from colonlight import ClipJob, ClipOptions, ClipOutcome, ColonlightError, MethodSpec, estimate_frames
+from colonlight.pipeline import GAMMAS_FILE, VIDEO_FILE
 from colonlight.video import VideoInfo, probe_video
 
 from .errors import ApiError, is_disk_full, storage_full

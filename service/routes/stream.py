@@ -47,8 +47,7 @@ from fastapi import APIRouter, WebSocket
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from starlette.websockets import WebSocketDisconnect
 
-from colonlight.errors import ColonlightError
-from colonlight.methods import FrameResult, MethodStream
+from colonlight import ColonlightError, FrameResult, MethodStream
 
 from ..deps import key_is_valid
 from ..errors import ApiError
