@@ -12,6 +12,7 @@ from typing import Optional
 
 import typer
 
+from colonlight.limits import DEFAULT_FPS
 from colonlight import (
     ClipOptions, ColonlightError, ManifestError, MethodSpec, OutputError, available_methods, default_workers,
     discover, is_available, output_lock, read_camera, run_batch,
@@ -53,7 +54,7 @@ def _stop_signals_interrupt() -> Iterator[list[int]]:
 def enhance(
     inputs: list[Path] = typer.Argument(..., help="Video files and/or folders (walked recursively; a folder of images is one clip)."),
     output: Path = typer.Option(Path("colonlight-out"), "--output", "-o", envvar="COLONLIGHT_OUTPUT", help="Output folder."),
-    fps: float = typer.Option(18.0, "--fps", envvar="COLONLIGHT_FPS", help="Extraction rate (FFmpeg fps-filter frame choice); 0 keeps every frame."),
+    fps: float = typer.Option(DEFAULT_FPS, "--fps", envvar="COLONLIGHT_FPS", help="Extraction rate (FFmpeg fps-filter frame choice); 0 keeps every frame."),
     method: str = options.Method,
     weights: Optional[Path] = options.Weights,
     model_size: Optional[str] = options.ModelSize,

@@ -32,7 +32,7 @@ def load_method_or_exit(spec: MethodSpec, debug: bool) -> Method:
     error (exit status 2, one line; the traceback with ``--debug``)."""
     try:
         return warm_method(spec)
-    except (ColonlightError, ValueError) as exc:
+    except ColonlightError as exc:  # OptionError, CheckpointError, DeviceError
         if debug:
             raise
         error_line(str(exc))

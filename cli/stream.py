@@ -11,13 +11,12 @@ from typing import Any, Optional
 import typer
 
 from colonlight import ColonlightError, MethodSpec, available_methods, is_available, network_threads, reuse_frame_memory
-from colonlight.limits import MAX_FPS
+from colonlight.limits import DEFAULT_FPS, MAX_FPS
 from colonlight.live import (
     DEFAULT_BUFFER, DEFAULT_TIMEOUT_S, PIPE_FORMATS, LiveStream, OutputPlan, StreamOptions, parse_source,
     prepare_output_dir,
 )
 from colonlight.live.reader import BACKOFF_MAX_S, BACKOFF_START_S
-from colonlight.video import DEFAULT_FPS
 
 from . import options
 from .display import console, error_line

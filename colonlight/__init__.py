@@ -39,6 +39,7 @@ _EXPORTS: dict[str, str] = {
     "ColonlightError": "errors",
     "DeviceError": "errors",
     "InputError": "errors",
+    "OptionError": "errors",
     "PathProblem": "discovery",
     "discover": "discovery",
     "discover_clips": "discovery",
@@ -70,7 +71,7 @@ if TYPE_CHECKING:
     from .curves import apply_gamma, apply_lut, gamma_lut
     from .device import resolve_device
     from .discovery import PathProblem, discover, discover_clips
-    from .errors import CheckpointError, ColonlightError, DeviceError, InputError
+    from .errors import CheckpointError, ColonlightError, DeviceError, InputError, OptionError
     from .jobs import ClipJob, ClipOutcome, MethodSpec, estimate_frames, method_for, run_clip
     from .methods import FrameResult, Method, MethodStream, available_methods, create_method, is_available
     from .outdir import OutputError, output_lock
@@ -108,6 +109,7 @@ __all__ = [
     "Method",
     "MethodSpec",
     "MethodStream",
+    "OptionError",
     "OutputError",
     "PathProblem",
     "__version__",

@@ -36,6 +36,7 @@ from .jobs import (  # noqa: F401 - the job types and run_clip, re-exported (the
     ClipJob, ClipOutcome, MethodSpec, ProgressFn, estimate_frames, method_for, run_clip,
 )
 from .methods import Method
+from .limits import available_cores
 from .outdir import output_lock
 from .pipeline import GAMMAS_FILE, ClipOptions
 
@@ -119,8 +120,7 @@ class ManifestError(ColonlightError):
 
 def default_workers(n_clips: int) -> int:
     """One worker per two cores (each clip already keeps a decoder, the model and encoders busy), at most one per clip."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, min(n_clips, cores // 2))
+    return max(1, min(n_clips, available_cores() // 2))
 
 
 #: glibc's mallopt parameters (malloc.h) and the values set for a clip worker: see :func:`reuse_frame_memory`.
@@ -203,7 +203,7 @@ def network_threads(spec: MethodSpec, workers: int) -> int:
     """torch threads for a clip worker: one for the recurrent net on a small copy of the frame (a 3 ms step that
     a second OpenMP thread barely speeds up while its spinning starves the decode and encode threads), else the
     worker's share of the cores."""
-    cores = os.cpu_count() or 1
+    cores = available_cores()
     size = dict(spec.options).get("model_size")
     if spec.name == "rnn" and str(size).lower() != "full":
         return 1

@@ -147,10 +147,10 @@ def _os_error_line(job: ClipJob, exc: OSError) -> str:
 def engine_wording(job: ClipJob, exc: Exception) -> tuple[str, str | None]:
     """The engine's words for a clip that raised, each naming the clip's source; a write error that means no
     room (or a write to the clip's outputs) also removes what the clip had written, to free space."""
-    if isinstance(exc, ColonlightError):
-        return str(exc), None
-    if isinstance(exc, ValueError):  # bad option values reach here from method construction
+    if isinstance(exc, ValueError):  # a bad option (OptionError) or frame; the line names the clip
         return f"{job.source}: {exc}", None
+    if isinstance(exc, ColonlightError):  # its message names the file already
+        return str(exc), None
     if isinstance(exc, OSError):  # a full disk, a read-only remount, an I/O error: this clip fails, the batch goes on
         line = _os_error_line(job, exc)
         if exc.errno in _NO_ROOM or _is_under(exc.filename, job.out_dir):

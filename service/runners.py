@@ -75,7 +75,7 @@ class MethodCache:
         return method
 
     def get(self, spec: MethodSpec) -> Method:
-        """The method for ``spec``, built on first use (ValueError / ColonlightError for bad options)."""
+        """The method for ``spec``, built on first use (OptionError, a ColonlightError, for bad options)."""
         with self._lock:
             if spec in self._pinned:
                 return self._pinned[spec]
@@ -106,7 +106,7 @@ def service_wording(job: ClipJob, exc: Exception) -> tuple[str, str | None]:
         return f"stopped: {exc.reason}", "stopped"
     if is_disk_full(exc):
         return NO_SPACE, DISK_FULL
-    if isinstance(exc, (ColonlightError, ValueError)):
+    if isinstance(exc, (ColonlightError, ValueError)):  # a ValueError from deep in a clip is the clip's, too
         return str(exc), None
     return f"internal error: {type(exc).__name__}: {exc}", traceback.format_exc()
 
@@ -135,7 +135,7 @@ class LocalRunner:
         def work() -> ClipOutcome:
             try:
                 method = self.methods.get(spec)
-            except (ColonlightError, ValueError) as exc:
+            except ColonlightError as exc:
                 hooks.started()
                 return ClipOutcome(job.name, str(job.source), "failed", error=str(exc))
             return run_one(job, method, opts, hooks)
