@@ -12,11 +12,11 @@ from typing import Optional
 
 import typer
 
-from colonlight.limits import DEFAULT_FPS
 from colonlight import (
     ClipOptions, ColonlightError, ManifestError, MethodSpec, OutputError, available_methods, default_workers,
     discover, is_available, output_lock, read_camera, run_batch,
 )
+from colonlight.limits import DEFAULT_FPS
 
 from . import options
 from .display import BatchDisplay, console, error_line, problem_line, summary

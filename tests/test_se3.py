@@ -14,7 +14,7 @@ Rotation = pytest.importorskip("scipy.spatial.transform", reason="scipy comes wi
 RNG = np.random.default_rng(15)
 AXES = [v / np.linalg.norm(v) for v in RNG.normal(size=(8, 3))]
 ANGLES = (1e-9, 1e-5, 1e-3, 0.3, 1.0, 2.5, np.pi - 1e-4, np.pi - 1e-6)
-ROTVECS = [axis * angle for axis, angle in zip(AXES, ANGLES)]
+ROTVECS = [axis * angle for axis, angle in zip(AXES, ANGLES, strict=True)]
 
 
 def rodrigues(w: np.ndarray) -> np.ndarray:
