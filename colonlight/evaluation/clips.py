@@ -24,7 +24,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..batch import discover_clips
+from ..discovery import discover_clips
 from ..errors import InputError
 from ..frames import list_image_frames, read_image
 from ..limits import DEFAULT_FPS
