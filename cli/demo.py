@@ -7,8 +7,8 @@ from pathlib import Path
 
 import typer
 
-from colonlight.batch import MethodSpec, discover_clips, run_batch
-from colonlight.pipeline import ClipOptions
+from colonlight import ClipOptions, MethodSpec, discover_clips, run_batch
+from colonlight.limits import DEFAULT_FPS
 
 from .display import BatchDisplay, console, error_line
 
@@ -34,7 +34,7 @@ def demo(
     enhanced = output / "enhanced"
     jobs = discover_clips([video_path], enhanced)
     with BatchDisplay(len(jobs), quiet=quiet) as display:
-        outcomes = run_batch(jobs, MethodSpec.of("rnn"), ClipOptions(fps=18.0, video=True), enhanced,
+        outcomes = run_batch(jobs, MethodSpec.of("rnn"), ClipOptions(fps=DEFAULT_FPS, video=True), enhanced,
                              progress=None if quiet else display.event, on_outcome=display.outcome)
     if outcomes[0].status != "done":
         error_line(outcomes[0].error or "demo failed")

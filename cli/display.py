@@ -20,8 +20,7 @@ from rich.progress import (
 )
 from rich.table import Table
 
-from colonlight.batch import ClipOutcome
-from colonlight.discovery import PathProblem
+from colonlight import ClipOutcome, PathProblem
 
 console = Console(stderr=True, highlight=False)
 out = Console(highlight=False)

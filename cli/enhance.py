@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import gc
 import signal
 import threading
 import time
@@ -13,16 +12,15 @@ from typing import Optional
 
 import typer
 
-from colonlight.batch import ManifestError, MethodSpec, default_workers, run_batch, warm_method
-from colonlight.discovery import discover
-from colonlight.errors import ColonlightError
-from colonlight.methods import available_methods, is_available
-from colonlight.outdir import OutputError, output_lock
-from colonlight.pipeline import ClipOptions
-from colonlight.slam_layout import read_camera
+from colonlight import (
+    ClipOptions, ColonlightError, ManifestError, MethodSpec, OutputError, available_methods, default_workers,
+    discover, is_available, output_lock, read_camera, run_batch,
+)
+from colonlight.limits import DEFAULT_FPS
 
 from . import options
 from .display import BatchDisplay, console, error_line, problem_line, summary
+from .loading import imports_frozen, load_method_or_exit
 
 INTERRUPTED = "interrupted; rerun the same command to resume"
 
@@ -56,7 +54,7 @@ def _stop_signals_interrupt() -> Iterator[list[int]]:
 def enhance(
     inputs: list[Path] = typer.Argument(..., help="Video files and/or folders (walked recursively; a folder of images is one clip)."),
     output: Path = typer.Option(Path("colonlight-out"), "--output", "-o", envvar="COLONLIGHT_OUTPUT", help="Output folder."),
-    fps: float = typer.Option(18.0, "--fps", envvar="COLONLIGHT_FPS", help="Extraction rate (FFmpeg fps-filter frame choice); 0 keeps every frame."),
+    fps: float = typer.Option(DEFAULT_FPS, "--fps", envvar="COLONLIGHT_FPS", help="Extraction rate (FFmpeg fps-filter frame choice); 0 keeps every frame."),
     method: str = options.Method,
     weights: Optional[Path] = options.Weights,
     model_size: Optional[str] = options.ModelSize,
@@ -110,23 +108,8 @@ def _run(
     workers: int | None, cluster: str | None, overwrite: bool, quiet: bool, debug: bool,
 ) -> bool:
     """The batch: load the model, hold the output folder, find the clips, run them. True if anything failed."""
-    # Loading the model imports torch (~10^5 long-lived objects): the cyclic GC, which would walk them again and
-    # again meanwhile, is off until they are frozen below (-0.1 s CPU of a ~1 s load).
-    gc.disable()
-    try:
-        try:
-            warm_method(spec)  # load the model now: a bad checkpoint or absent device stops here, loudly
-        except (ColonlightError, ValueError) as exc:
-            if debug:
-                raise
-            error_line(str(exc))
-            raise typer.Exit(2) from None
-    finally:
-        # Everything imported so far (torch alone is ~10^5 objects) lives as long as the process: moved out of the
-        # cyclic GC's sight, the full collections that frame-rate allocation triggers (~0.1 s each, all threads
-        # stopped) become cheap. Measured: -0.8 s wall on a 20 s 1350x1080 clip.
-        gc.freeze()
-        gc.enable()
+    with imports_frozen():
+        load_method_or_exit(spec, debug)  # load the model now: a bad checkpoint or absent device stops here, loudly
     try:
         with output_lock(output):
             found = discover(inputs, output, pattern, exclude=[output])

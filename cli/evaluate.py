@@ -11,6 +11,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from colonlight.errors import ColonlightError
+from colonlight.limits import DEFAULT_FPS
 
 from . import options
 from .display import console, error_line
@@ -201,7 +202,7 @@ def evaluate(
         typer.Option(
             "--fps", min=0.0, help="Extraction rate of videos (FFmpeg fps-filter choice); 0 keeps all."
         ),
-    ] = 18.0,
+    ] = DEFAULT_FPS,
     max_size: Annotated[
         int,
         typer.Option(

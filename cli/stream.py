@@ -3,7 +3,6 @@ real time into a frame folder, ``gammas.jsonl`` and/or a pipe on standard output
 
 from __future__ import annotations
 
-import gc
 import signal
 import sys
 from pathlib import Path
@@ -11,19 +10,17 @@ from typing import Any, Optional
 
 import typer
 
-from colonlight.batch import MethodSpec, network_threads, reuse_frame_memory
-from colonlight.errors import ColonlightError
-from colonlight.limits import MAX_FPS
+from colonlight import ColonlightError, MethodSpec, available_methods, is_available, network_threads, reuse_frame_memory
+from colonlight.limits import DEFAULT_FPS, MAX_FPS
 from colonlight.live import (
     DEFAULT_BUFFER, DEFAULT_TIMEOUT_S, PIPE_FORMATS, LiveStream, OutputPlan, StreamOptions, parse_source,
     prepare_output_dir,
 )
 from colonlight.live.reader import BACKOFF_MAX_S, BACKOFF_START_S
-from colonlight.video import DEFAULT_FPS
-from colonlight.methods import available_methods, is_available
 
 from . import options
 from .display import console, error_line
+from .loading import imports_frozen, load_method_or_exit
 
 
 def _input_options(pairs: list[str]) -> dict[str, str]:
@@ -125,15 +122,8 @@ def stream(
     except ValueError as exc:
         raise typer.BadParameter(str(exc)) from exc
     spec = MethodSpec.of(method, **options.method_options(method, weights, model_size, device, gamma))
-    gc.disable()  # as in `enhance`: the cyclic GC is off while torch loads, then the imports are frozen
-    try:
-        try:
-            engine = spec.build()  # a bad checkpoint or absent device stops here: a usage error, as in `enhance`
-        except (ColonlightError, ValueError) as exc:
-            if debug:
-                raise
-            error_line(str(exc))
-            raise typer.Exit(2) from None
+    with imports_frozen():  # as in `enhance`
+        engine = load_method_or_exit(spec, debug)  # a bad checkpoint or absent device: a usage error, as in `enhance`
         try:
             src = parse_source(source, input_format, _input_options(input_option))
             if output is not None:
@@ -143,9 +133,6 @@ def stream(
                 raise
             error_line(str(exc))
             raise typer.Exit(1) from None
-    finally:
-        gc.freeze()
-        gc.enable()
     if "torch" in sys.modules:  # the method uses torch: its threads as `enhance` sets them (one for the small net)
         sys.modules["torch"].set_num_threads(network_threads(spec, 1))
     reuse_frame_memory()

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from colonlight.limits import DEFAULT_FPS
+
 from .display import console
 
 
@@ -16,7 +18,7 @@ def synth(
     frames: int = typer.Option(90, "--frames", min=2, help="Frames per clip."),
     width: int = typer.Option(384, "--width", min=32),
     height: int = typer.Option(288, "--height", min=32),
-    fps: float = typer.Option(18.0, "--fps", min=1.0, help="Frame rate of the clip (and its timestamps)."),
+    fps: float = typer.Option(DEFAULT_FPS, "--fps", min=1.0, help="Frame rate of the clip (and its timestamps)."),
     split: str = typer.Option("train", "--split", help="Parameter family: train | heldout (ranges never used in training)."),
     video: bool = typer.Option(True, "--video/--no-video", help="Write clip.mp4 (H.264)."),
     workers: int = typer.Option(2, "--workers", "-j", min=1),

@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING, Optional
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+from colonlight.limits import DEFAULT_FPS
+
 from .display import console
 from .options import invocation
 
@@ -27,7 +29,7 @@ def _synthetic_clips(run_dir: Path, n: int, seed: int, frames: int, split: str, 
 
 
 def _clips(paths: list[Path]) -> list[Path]:
-    from colonlight.batch import discover_clips
+    from colonlight import discover_clips
 
     return [j.source for j in discover_clips(paths, Path("."))]
 
@@ -61,7 +63,7 @@ def train_cmd(
     init: Optional[str] = typer.Option(None, "--init", help="Start from a checkpoint (ours or the authors' .pth), or 'default'."),
     name: str = typer.Option("colonlight-rnn", "--name", help="Name of the weights file and card."),
     resume: bool = typer.Option(True, "--resume/--no-resume", help="Continue from the last epoch saved in OUTPUT."),
-    fps: float = typer.Option(18.0, "--fps", help="Extraction rate for video clips (0: every frame)."),
+    fps: float = typer.Option(DEFAULT_FPS, "--fps", help="Extraction rate for video clips (0: every frame)."),
 ) -> None:
     """Train a model; writes OUTPUT/NAME.safetensors and its model card OUTPUT/NAME.json."""
     command = invocation(ctx)

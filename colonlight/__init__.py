@@ -22,6 +22,12 @@ __version__ = "0.1.0"
 # The public names load on first use (PEP 562): ``import colonlight`` stays light, and ``colonlight enhance`` pays
 # only for what the clip needs (no torch for ``--method none``; nothing of training or evaluation).
 _EXPORTS: dict[str, str] = {
+    "ManifestError": "batch",
+    "default_workers": "batch",
+    "network_threads": "batch",
+    "reuse_frame_memory": "batch",
+    "run_batch": "batch",
+    "warm_method": "batch",
     "LoadedWeights": "checkpoint",
     "load_weights": "checkpoint",
     "save_weights": "checkpoint",
@@ -33,26 +39,45 @@ _EXPORTS: dict[str, str] = {
     "ColonlightError": "errors",
     "DeviceError": "errors",
     "InputError": "errors",
+    "OptionError": "errors",
+    "PathProblem": "discovery",
+    "discover": "discovery",
+    "discover_clips": "discovery",
+    "ClipJob": "jobs",
+    "ClipOutcome": "jobs",
+    "MethodSpec": "jobs",
+    "estimate_frames": "jobs",
+    "method_for": "jobs",
+    "run_clip": "jobs",
     "FrameResult": "methods",
     "Method": "methods",
     "MethodStream": "methods",
     "available_methods": "methods",
     "create_method": "methods",
+    "is_available": "methods",
+    "OutputError": "outdir",
+    "output_lock": "outdir",
     "GammaNet": "model",
     "ClipOptions": "pipeline",
     "ClipResult": "pipeline",
     "enhance_clip": "pipeline",
     "iter_enhanced": "pipeline",
+    "read_camera": "slam_layout",
 }
 
 if TYPE_CHECKING:
+    from .batch import ManifestError, default_workers, network_threads, reuse_frame_memory, run_batch, warm_method
     from .checkpoint import LoadedWeights, load_weights, save_weights
     from .curves import apply_gamma, apply_lut, gamma_lut
     from .device import resolve_device
-    from .errors import CheckpointError, ColonlightError, DeviceError, InputError
-    from .methods import FrameResult, Method, MethodStream, available_methods, create_method
+    from .discovery import PathProblem, discover, discover_clips
+    from .errors import CheckpointError, ColonlightError, DeviceError, InputError, OptionError
+    from .jobs import ClipJob, ClipOutcome, MethodSpec, estimate_frames, method_for, run_clip
+    from .methods import FrameResult, Method, MethodStream, available_methods, create_method, is_available
+    from .outdir import OutputError, output_lock
     from .model import GammaNet
     from .pipeline import ClipOptions, ClipResult, enhance_clip, iter_enhanced
+    from .slam_layout import read_camera
 
 
 def __getattr__(name: str) -> Any:
@@ -70,7 +95,9 @@ def __dir__() -> list[str]:
 
 __all__ = [
     "CheckpointError",
+    "ClipJob",
     "ClipOptions",
+    "ClipOutcome",
     "ClipResult",
     "ColonlightError",
     "DeviceError",
@@ -78,17 +105,35 @@ __all__ = [
     "GammaNet",
     "InputError",
     "LoadedWeights",
+    "ManifestError",
     "Method",
+    "MethodSpec",
     "MethodStream",
+    "OptionError",
+    "OutputError",
+    "PathProblem",
     "__version__",
     "apply_gamma",
     "apply_lut",
     "available_methods",
     "create_method",
+    "default_workers",
+    "discover",
+    "discover_clips",
     "enhance_clip",
+    "estimate_frames",
     "gamma_lut",
+    "is_available",
     "iter_enhanced",
     "load_weights",
+    "method_for",
+    "network_threads",
+    "output_lock",
+    "read_camera",
     "resolve_device",
+    "reuse_frame_memory",
+    "run_batch",
+    "run_clip",
     "save_weights",
+    "warm_method",
 ]

@@ -15,14 +15,12 @@ What a batch guarantees (the README's reliability section says the same for user
 
 from __future__ import annotations
 
-import errno
 import multiprocessing as mp
 import os
 import queue
 import signal
 import sys
 import time
-import traceback
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -32,177 +30,26 @@ from typing import Any
 
 from . import __version__
 from .atomic import remove_stale_temporaries, write_json_atomic
-from .discovery import VIDEO_SUFFIXES, ClipJob, discover_clips  # noqa: F401 - re-exported (the batch's API)
+from .discovery import VIDEO_SUFFIXES, discover_clips  # noqa: F401 - re-exported (the batch's API)
 from .errors import ColonlightError
-from .frames import list_image_frames
-from .methods import Method, create_method
+from .jobs import (  # noqa: F401 - the job types and run_clip, re-exported (the batch's API)
+    ClipJob, ClipOutcome, MethodSpec, ProgressFn, estimate_frames, method_for, run_clip,
+)
+from .methods import Method
+from .limits import available_cores
 from .outdir import output_lock
-from .pipeline import FRAMES_DIR, GAMMAS_FILE, VIDEO_FILE, ClipOptions, complete_record, enhance_clip
-from .video import probe_video
+from .pipeline import GAMMAS_FILE, ClipOptions
 
 MANIFEST_FILE = "manifest.json"
 #: How names that are not valid UTF-8 appear in the manifest (and in every gammas.json): see atomic.json_bytes.
 PATH_ENCODING = "utf-8, surrogateescape (a byte 0xNN that is not UTF-8 is written as \\udcNN; os.fsencode restores it)"
-#: Errors of writing that mean "no room": the clip's partial outputs are removed to free it.
-_NO_ROOM = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
-
-
-@dataclass
-class ClipOutcome:
-    name: str
-    source: str
-    status: str  # done | failed
-    frames: int = 0
-    seconds: float = 0.0
-    skipped: bool = False
-    error: str | None = None
-    detail: str | None = None  # traceback of an unexpected error (shown with --debug)
-    truncated: bool = False  # done from a source that looks cut short (the frames that decode)
-    warnings: tuple[str, ...] = ()  # one line each, without the path
-
-
-@dataclass(frozen=True)
-class MethodSpec:
-    """A method by name and options: cheap to send to worker processes, which build (and cache) the method."""
-
-    name: str = "rnn"
-    options: tuple[tuple[str, Any], ...] = ()
-
-    @staticmethod
-    def of(name: str, **options: Any) -> MethodSpec:
-        return MethodSpec(name, tuple(sorted((k, v) for k, v in options.items() if v is not None)))
-
-    def build(self) -> Method:
-        return create_method(self.name, **dict(self.options))
-
-
-def estimate_frames(source: Path, fps: float | None) -> int | None:
-    """A rough frame count for progress bars only (container metadata is never used to select frames)."""
-    try:
-        if source.is_dir():
-            return len(list_image_frames(source))
-        info = probe_video(source)
-        if info.duration_s:
-            rate = fps or info.avg_fps
-            return int(info.duration_s * rate) + 1 if rate else None
-    except (ColonlightError, OSError):
-        return None
-    return None
 
 
 # ----------------------------------------------------------------------------------------------- running
 
-ProgressFn = Callable[[str, str, dict[str, Any]], None]
-"""``progress(event, clip_name, data)``; events: ``start`` (data: total), ``frames`` (data: done), ``end``."""
-
-_WORKER_METHODS: dict[MethodSpec, Method] = {}
-
-
-def _method_for(spec: MethodSpec) -> Method:
-    """The method for ``spec``, built once per process and reused for every clip."""
-    if spec not in _WORKER_METHODS:
-        _WORKER_METHODS[spec] = spec.build()
-    return _WORKER_METHODS[spec]
-
-
-def _is_under(path: str | os.PathLike[str] | None, folder: Path) -> bool:
-    if path is None:
-        return False
-    try:
-        return os.path.commonpath([os.path.abspath(os.fsdecode(path)), os.path.abspath(folder)]) == os.path.abspath(folder)
-    except ValueError:
-        return False
-
-
-def _discard_partial_outputs(out_dir: Path) -> None:
-    """Remove what a clip that failed on a write error published (frames, video, temporaries), to free the room
-    it took; a rerun writes them all again anyway (only a clip's ``gammas.json`` makes it complete)."""
-    remove_stale_temporaries(out_dir)
-    frames_dir = out_dir / FRAMES_DIR
-    try:
-        for p in frames_dir.iterdir():
-            if p.name.partition(".")[0].isdigit():
-                p.unlink(missing_ok=True)
-    except OSError:
-        pass
-    try:
-        (out_dir / VIDEO_FILE).unlink(missing_ok=True)
-    except OSError:
-        pass
-    for folder in (frames_dir, out_dir):
-        try:
-            folder.rmdir()  # only if now empty
-        except OSError:
-            pass
-
-
-def _os_error_line(job: ClipJob, exc: OSError) -> str:
-    """One line for an OS error while running a clip: a write to its outputs, or a read of its source."""
-    cause = exc.strerror or type(exc).__name__
-    if exc.errno in _NO_ROOM or _is_under(exc.filename, job.out_dir):
-        return f"{job.source}: cannot write its outputs to {job.out_dir}: {cause}"
-    where = f" ({os.fsdecode(exc.filename)})" if exc.filename is not None else ""
-    return f"{job.source}: {cause}{where}"
-
-
 def warm_method(spec: MethodSpec) -> Method:
     """Build the method of ``spec`` in this process now (a bad checkpoint or device fails here, not mid-batch)."""
-    return _method_for(spec)
-
-
-def run_clip(
-    job: ClipJob,
-    spec: MethodSpec,
-    opts: ClipOptions,
-    overwrite: bool = False,
-    progress: ProgressFn | None = None,
-) -> ClipOutcome:
-    """Run one clip and never raise for a bad clip: the outcome carries the one-line error.
-
-    Only ``BaseException``s that are not errors (an interrupt, ``SystemExit``) propagate.
-    """
-    t0 = time.perf_counter()
-
-    def failed(error: str, detail: str | None = None) -> ClipOutcome:
-        return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0, error=error,
-                           detail=detail)
-
-    if job.problem is not None:
-        return failed(job.problem)
-    started = False
-    try:
-        method = _method_for(spec)
-        record = None if overwrite else complete_record(job.out_dir, method, opts)
-        if record is not None:
-            return ClipOutcome(job.name, str(job.source), "done", frames=record.get("frame_count", 0), skipped=True,
-                               truncated=bool(record.get("truncated")), warnings=tuple(record.get("warnings", ())))
-        if progress:
-            started = True
-            progress("start", job.name, {"total": estimate_frames(job.source, opts.fps)})
-        result = enhance_clip(
-            job.source,
-            job.out_dir,
-            method,
-            opts,
-            clip_name=job.name,
-            on_frame=(lambda n: progress("frames", job.name, {"done": n})) if progress else None,
-        )
-        return ClipOutcome(job.name, str(job.source), "done", frames=result.frames, seconds=result.seconds,
-                           truncated=result.truncated, warnings=result.warnings)
-    except ColonlightError as exc:
-        return failed(str(exc))
-    except ValueError as exc:  # bad option values reach here from method construction
-        return failed(f"{job.source}: {exc}")
-    except OSError as exc:  # a full disk, a read-only remount, an I/O error: this clip fails, the batch goes on
-        line = _os_error_line(job, exc)
-        if exc.errno in _NO_ROOM or _is_under(exc.filename, job.out_dir):
-            _discard_partial_outputs(job.out_dir)
-        return failed(line, traceback.format_exc())
-    except Exception as exc:  # noqa: BLE001 - a bug must not stop the batch; it is reported with its traceback
-        return failed(f"{job.source}: internal error: {type(exc).__name__}: {exc}", traceback.format_exc())
-    finally:
-        if started and progress:
-            progress("end", job.name, {})
+    return method_for(spec)
 
 
 @dataclass
@@ -273,8 +120,7 @@ class ManifestError(ColonlightError):
 
 def default_workers(n_clips: int) -> int:
     """One worker per two cores (each clip already keeps a decoder, the model and encoders busy), at most one per clip."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, min(n_clips, cores // 2))
+    return max(1, min(n_clips, available_cores() // 2))
 
 
 #: glibc's mallopt parameters (malloc.h) and the values set for a clip worker: see :func:`reuse_frame_memory`.
@@ -357,7 +203,7 @@ def network_threads(spec: MethodSpec, workers: int) -> int:
     """torch threads for a clip worker: one for the recurrent net on a small copy of the frame (a 3 ms step that
     a second OpenMP thread barely speeds up while its spinning starves the decode and encode threads), else the
     worker's share of the cores."""
-    cores = os.cpu_count() or 1
+    cores = available_cores()
     size = dict(spec.options).get("model_size")
     if spec.name == "rnn" and str(size).lower() != "full":
         return 1

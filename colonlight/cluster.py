@@ -1,8 +1,8 @@
 """Scale-out on a Dask distributed cluster: one task per clip, on workers that share the inputs and outputs.
 
 ``colonlight enhance ... --cluster tcp://HOST:8786`` (or ``COLONLIGHT_CLUSTER``) sends the batch here instead of
-the local pool. Every clip is one Dask task running :func:`colonlight.batch.run_clip` on a worker, which builds the
-method once per worker process (``_method_for`` caches it) and writes the clip's outputs itself, so the workers
+the local pool. Every clip is one Dask task running :func:`colonlight.jobs.run_clip` on a worker, which builds the
+method once per worker process (``method_for`` caches it) and writes the clip's outputs itself, so the workers
 must see the inputs, the weights and the output folder **at the same paths** as this machine (a shared
 filesystem: NFS, a cluster filesystem, the same volume in every container).
 
@@ -46,7 +46,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 from . import __version__
-from .batch import ClipJob, ClipOutcome, MethodSpec, ProgressFn, _method_for, run_clip
+from .jobs import ClipJob, ClipOutcome, MethodSpec, ProgressFn, method_for, run_clip
 from .errors import ColonlightError
 from .pipeline import ClipOptions
 
@@ -137,7 +137,7 @@ def cluster_task(
         return failed(f"{job.out_dir}: worker {worker} does not see this output folder; {SHARED_FS_HINT}")
     if check.model is not None:
         try:
-            theirs = _method_for(spec).model_info()
+            theirs = method_for(spec).model_info()
         except Exception:  # noqa: BLE001 - run_clip reports a method that cannot be built
             theirs = check.model
         if theirs != check.model:
@@ -273,7 +273,7 @@ class ClusterRunner:
         """This machine's model_info() for ``spec`` (None when it cannot build the method: the workers then decide)."""
         if spec not in self._model_cache:
             try:
-                self._model_cache[spec] = _method_for(spec).model_info()
+                self._model_cache[spec] = method_for(spec).model_info()
             except Exception:  # noqa: BLE001
                 self._model_cache[spec] = None
         return self._model_cache[spec]

@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from .methods.base import FrameResult, Method, MethodStream, check_frame
+from .errors import FrameShapeError, OptionError
 
 ContentMode = Literal["auto", "full"]
 CONTENT_MODES: tuple[str, ...] = ("auto", "full")
@@ -77,7 +78,7 @@ def parse_content_mode(value: str) -> ContentMode:
     """``"auto"`` or ``"full"`` (any case); anything else raises ``ValueError``."""
     word = str(value).strip().lower()
     if word not in CONTENT_MODES:
-        raise ValueError(f"content must be one of {', '.join(CONTENT_MODES)}, got {value!r}")
+        raise OptionError(f"content must be one of {', '.join(CONTENT_MODES)}, got {value!r}")
     return word  # type: ignore[return-value]
 
 
@@ -290,7 +291,7 @@ class ContentStream(MethodStream):
 
     def __init__(self, inner: MethodStream, detect_frames: int = DETECT_FRAMES) -> None:
         if detect_frames < 1:
-            raise ValueError(f"detect_frames must be >= 1, got {detect_frames}")
+            raise OptionError(f"detect_frames must be >= 1, got {detect_frames}")
         self._inner = inner
         self._detect_frames = detect_frames
         self._stats = BlockStats()
@@ -310,7 +311,7 @@ class ContentStream(MethodStream):
         check_frame(frame)
         shape = (self._warmup[0] if self._warmup else self._placement.area.fov if self._placement else frame).shape
         if frame.shape[:2] != shape[:2]:
-            raise ValueError(f"frame is {frame.shape[1]}x{frame.shape[0]}, the stream started at "
+            raise FrameShapeError(f"frame is {frame.shape[1]}x{frame.shape[0]}, the stream started at "
                              f"{shape[1]}x{shape[0]}: start a new stream for a new frame size")
         self._stats.add(frame)
         if self._placement is None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from .errors import OptionError
 
 _LEVELS = np.arange(256, dtype=np.float64) / 255.0
 
@@ -20,7 +21,7 @@ def gamma_lut(gamma: float) -> np.ndarray:
     ``numpy.rint`` (round half to even, like Python's ``round``), so it is bit-identical to that formula.
     """
     if not np.isfinite(gamma) or gamma <= 0:
-        raise ValueError(f"gamma must be finite and > 0, got {gamma!r}")
+        raise OptionError(f"gamma must be finite and > 0, got {gamma!r}")
     return np.rint(255.0 * _LEVELS**gamma).astype(np.uint8)
 
 
@@ -30,11 +31,11 @@ def gain_gamma_lut(gain: float, gamma: float) -> np.ndarray:
     ``gain == 1`` gives exactly :func:`gamma_lut`. Both must be finite and positive.
     """
     if not np.isfinite(gain) or gain <= 0:
-        raise ValueError(f"gain must be finite and > 0, got {gain!r}")
+        raise OptionError(f"gain must be finite and > 0, got {gain!r}")
     if gain == 1.0:
         return gamma_lut(gamma)
     if not np.isfinite(gamma) or gamma <= 0:
-        raise ValueError(f"gamma must be finite and > 0, got {gamma!r}")
+        raise OptionError(f"gamma must be finite and > 0, got {gamma!r}")
     return np.rint(255.0 * np.minimum(1.0, gain * _LEVELS**gamma)).astype(np.uint8)
 
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .frames import IMAGE_SUFFIXES, is_image_folder
+from .jobs import ClipJob
 from .video import is_video
 
 #: Suffixes taken as videos even before probing, so that a broken file with such a name is reported, not ignored.
@@ -33,20 +34,6 @@ _SIDE_SUFFIXES = frozenset(".json .txt .csv .md .yaml .yml .xml .log .ini".split
 #: The lock file every ``colonlight enhance`` output folder holds (see :mod:`colonlight.outdir`): a folder
 #: holding it is an output, never an input.
 OUTPUT_MARKER = ".colonlight.lock"
-
-
-@dataclass(frozen=True)
-class ClipJob:
-    """One clip of a batch: where it comes from, what it is called and where its outputs go.
-
-    ``problem``: set when discovery already knows the clip cannot be read (a symlink loop, a dangling link);
-    the clip then fails with this one-line message without being opened.
-    """
-
-    source: Path
-    name: str  # relative output path, POSIX separators
-    out_dir: Path
-    problem: str | None = None
 
 
 @dataclass(frozen=True)

@@ -5,8 +5,13 @@ Hierarchy::
     ColonlightError              base of every expected failure; its message is one line for the user
     ├── InputError               a clip or frame folder that cannot be read (names the file and the cause)
     │   └── FrameTooLargeError   its frames exceed the pixel cap (known from the header, before decoding)
+    │   └── FrameShapeError      a frame a method cannot take (not HxWx3 uint8, a size that changed mid-stream)
+    ├── OptionError              a bad option value: a method's (unknown name, out of range), a clip's, a stream's
     ├── CheckpointError          a weights file that is missing, corrupt, truncated or of an unknown format
     └── DeviceError              a requested device (e.g. ``cuda:1``) that this machine does not have
+
+``OptionError`` and ``FrameShapeError`` are also ``ValueError``s, as these failures were before they had a type
+of their own: callers that catch ``ValueError`` keep working.
 
 Shells (CLI, service) catch ``ColonlightError`` and show its message without a traceback; anything else is a bug.
 """
@@ -35,6 +40,14 @@ class FrameTooLargeError(InputError):
             f"{path}: frames of {size} exceed the pixel cap of {max_pixels} "
             f"({max_pixels / 1e6:.1f} Mpx; raise it with COLONLIGHT_MAX_PIXELS or --max-pixels)"
         )
+
+
+class FrameShapeError(InputError, ValueError):
+    """A frame that a method cannot take: its shape or type, or a size other than the stream's first frame."""
+
+
+class OptionError(ColonlightError, ValueError):
+    """An option value that cannot be used (a method, clip or stream option): the message names it and the range."""
 
 
 class CheckpointError(ColonlightError):

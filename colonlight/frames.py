@@ -23,7 +23,8 @@ import numpy as np
 from .atomic import write_bytes_atomic
 from .errors import FrameTooLargeError, InputError
 from .limits import max_pixels_setting
-from .video import DEFAULT_FPS, DecodedFrame, is_video
+from .limits import DEFAULT_FPS
+from .video import DecodedFrame, is_video
 
 IMAGE_SUFFIXES: frozenset[str] = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"})
 

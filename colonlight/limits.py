@@ -1,4 +1,5 @@
-"""Bounds on what one clip may ask of a machine, shared by the CLI and the service (one place for each).
+"""Bounds on what one clip may ask of a machine, and the defaults they bound, shared by the CLI and the service
+(one place for each).
 
 A frame of ``w x h`` pixels costs ``3 w h`` bytes as RGB and about as much again while it is decoded, resized and
 encoded, so the pixel cap bounds memory per frame whatever the input claims to be; the fps cap bounds how many
@@ -17,6 +18,14 @@ DEFAULT_MAX_PIXELS = 4096 * 4096
 MAX_FPS = 240.0
 #: Environment variable that overrides :data:`DEFAULT_MAX_PIXELS` in the CLI and the service alike.
 MAX_PIXELS_ENV = "COLONLIGHT_MAX_PIXELS"
+#: The extraction rate when none is given (CLI, service, evaluation, training, a frame folder's assumed rate):
+#: the authors' ``ffmpeg -vf fps=18`` extraction, which their model was trained on.
+DEFAULT_FPS = 18.0
+
+
+def available_cores() -> int:
+    """The cores this process may run on (its CPU affinity, e.g. a container's cpuset), at least 1."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def max_pixels_setting(environ: Mapping[str, str] | None = None) -> int:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import torch
 from torch import Tensor, nn
+from .errors import OptionError
 
 HIDDEN = 32
 BN_MOMENTUM = 0.01
@@ -61,7 +62,7 @@ class GammaNet(nn.Module):
     def __init__(self, hidden: int = HIDDEN, head: str = "gamma") -> None:
         super().__init__()
         if head not in HEAD_OUTPUTS:
-            raise ValueError(f"unknown head {head!r}; choose from {', '.join(HEAD_OUTPUTS)}")
+            raise OptionError(f"unknown head {head!r}; choose from {', '.join(HEAD_OUTPUTS)}")
         self.head = head
         self.in_cnv = nn.Conv2d(3, hidden, 3, padding=1)
         self.bn = nn.BatchNorm2d(hidden, momentum=BN_MOMENTUM)

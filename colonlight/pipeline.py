@@ -35,9 +35,9 @@ import numpy as np
 from . import __version__
 from .atomic import publish, remove_stale_temporaries, write_json_atomic, write_temporary
 from .content import DEFAULT_CONTENT, content_stream, parse_content_mode
-from .errors import InputError
+from .errors import InputError, OptionError
 from .frames import encode_image
-from .limits import MAX_FPS, max_pixels_setting
+from .limits import DEFAULT_FPS, MAX_FPS, max_pixels_setting
 from .methods.base import FrameResult, Method
 from .provenance import library_versions
 from .slam_layout import camera_setting, clip_camera, write_slam_layout
@@ -92,12 +92,12 @@ def peak_rss_bound(
 class ClipOptions:
     """Output settings of a clip; together with the method they decide every output byte."""
 
-    fps: float | None = 18.0  # None or 0: keep every source frame
+    fps: float | None = DEFAULT_FPS  # None or 0: keep every source frame
     frames: bool = True
     video: bool = False
     format: str = "png"  # png | jpg
     quality: int = 95  # JPEG quality
-    folder_fps: float = 18.0  # the rate assumed for a folder of frames
+    folder_fps: float = DEFAULT_FPS  # the rate assumed for a folder of frames
     camera: tuple[str, str] | None = None  # (file name, text) of a DSO/COLMAP camera file to copy (slam_layout)
     #: Largest frame (width x height) decoded; larger clips fail from their header. Default: limits.max_pixels_setting()
     max_pixels: int = field(default_factory=max_pixels_setting)
@@ -106,15 +106,15 @@ class ClipOptions:
     def __post_init__(self) -> None:
         object.__setattr__(self, "content", parse_content_mode(self.content))
         if self.format not in ("png", "jpg"):
-            raise ValueError(f"format must be png or jpg, got {self.format!r}")
+            raise OptionError(f"format must be png or jpg, got {self.format!r}")
         if not 1 <= self.quality <= 100:
-            raise ValueError(f"quality must be within 1..100, got {self.quality}")
+            raise OptionError(f"quality must be within 1..100, got {self.quality}")
         if self.fps is not None and not 0 <= self.fps <= MAX_FPS:
-            raise ValueError(f"fps must be within 0..{MAX_FPS:g}, got {self.fps:g}")
+            raise OptionError(f"fps must be within 0..{MAX_FPS:g}, got {self.fps:g}")
         if self.max_pixels < 1:
-            raise ValueError(f"max_pixels must be >= 1, got {self.max_pixels}")
+            raise OptionError(f"max_pixels must be >= 1, got {self.max_pixels}")
         if not (self.frames or self.video):
-            raise ValueError("nothing to write: enable frames or video")
+            raise OptionError("nothing to write: enable frames or video")
 
 
 @dataclass(frozen=True)
@@ -406,9 +406,9 @@ def _enhance_clip(
 
 
 def _source_rate(head: list[DecodedFrame]) -> float:
-    """The rate of a clip kept at its own frame rate, from its first two timestamps (fallback 18)."""
+    """The rate of a clip kept at its own frame rate, from its first two timestamps (fallback :data:`~colonlight.limits.DEFAULT_FPS`)."""
     dt = head[1].source_time_s - head[0].source_time_s
-    return 1.0 / dt if dt > 0 else 18.0
+    return 1.0 / dt if dt > 0 else DEFAULT_FPS
 
 
 def iter_enhanced(

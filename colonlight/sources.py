@@ -10,7 +10,7 @@ from pathlib import Path
 
 from .errors import InputError
 from .frames import check_image_size, is_image_folder, iter_image_folder, list_image_frames
-from .limits import max_pixels_setting
+from .limits import DEFAULT_FPS, max_pixels_setting
 from .video import DecodedFrame, DecodeReport, iter_video_frames, probe_frame_size
 
 
@@ -46,8 +46,8 @@ def check_frame_size(path: Path, max_pixels: int | None = None) -> tuple[int, in
 
 def clip_frames(
     path: Path,
-    fps: float | None = 18.0,
-    folder_fps: float = 18.0,
+    fps: float | None = DEFAULT_FPS,
+    folder_fps: float = DEFAULT_FPS,
     min_frames: int = 0,
     max_pixels: int | None = None,
     report: DecodeReport | None = None,

@@ -33,6 +33,7 @@ from safetensors.torch import load_file, save_file
 from .atomic import atomic_path, write_json_atomic
 from .checkpoint import load_weights, save_weights
 from .errors import InputError
+from .limits import DEFAULT_FPS
 from .methods.rnn import DEFAULT_MODEL_SIZE
 from .correction import apply_gain_gamma, gain_gamma_from_raw
 from .model import HEAD_OUTPUTS, GammaNet, correct, parameter_count
@@ -56,7 +57,7 @@ class TrainConfig:
     lr: float = 5e-5
     epochs: int = 10
     seed: int = 0
-    fps: float | None = 18.0
+    fps: float | None = DEFAULT_FPS
     ssim_window: int = 11
     init: str | None = None  # a checkpoint to start from (fine-tuning), else fresh Xavier init
     anchor: float = 0.0  # weight of the opt-in brightness anchor; 0 is the paper's objective

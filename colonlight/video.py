@@ -35,11 +35,9 @@ from av.video.reformatter import VideoReformatter
 
 from .atomic import atomic_path
 from .errors import FrameTooLargeError, InputError
-from .limits import max_pixels_setting
+from .limits import DEFAULT_FPS, max_pixels_setting
 
 log = logging.getLogger(__name__)
-
-DEFAULT_FPS = 18.0
 
 #: Suffixes that usually name videos. Advisory only (e.g. to report a misnamed file): detection is by content.
 VIDEO_SUFFIXES = frozenset(

@@ -39,9 +39,9 @@ from typing import Any
 import anyio
 
 from colonlight.atomic import write_json_atomic
-from colonlight.batch import ClipJob, ClipOutcome, MethodSpec, estimate_frames
-from colonlight.errors import ColonlightError
-from colonlight.pipeline import GAMMAS_FILE, VIDEO_FILE, ClipOptions
+from colonlight import ClipJob, ClipOptions, ClipOutcome, ColonlightError, MethodSpec, estimate_frames
+from colonlight.limits import MAX_FPS, available_cores
+from colonlight.pipeline import GAMMAS_FILE, VIDEO_FILE
 from colonlight.video import VideoInfo, probe_video
 
 from .errors import ApiError, is_disk_full, storage_full
@@ -161,7 +161,7 @@ class JobManager:
             return
         try:
             await asyncio.to_thread(self.methods.get, spec)
-        except (ColonlightError, ValueError) as exc:
+        except ColonlightError as exc:
             raise ApiError(422, "validation_error", f"method {spec.name!r} cannot be used: {exc}") from None
 
     # ------------------------------------------------------------------------------------------ life cycle
@@ -192,7 +192,7 @@ class JobManager:
         try:
             import torch
 
-            cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+            cores = available_cores()
             torch.set_num_threads(self.settings.torch_threads or max(1, cores // self.settings.workers))
             method = self.methods.pin(self.default_spec)
             self.model_info = {"method": method.name, "model": method.model_info(), "parameters": method.parameters()}
@@ -530,7 +530,7 @@ class JobManager:
             raise too_long
         opts = self.resolved(options)
         spec, clip_opts = self.method_spec(opts), self.clip_options(opts, frames=False)
-        rate = (opts.fps or 0) or info.avg_fps or 240.0
+        rate = (opts.fps or 0) or info.avg_fps or MAX_FPS
         max_frames = math.ceil(limit * rate) + 2
         token = "sync-" + secrets.token_hex(8)
         work = self.sync_dir / token

@@ -1,7 +1,11 @@
-"""Counters of the running server, rendered in the Prometheus text format (no client library needed).
+"""Counters of the running server, exposed through ``prometheus_client`` in the Prometheus text format.
 
-Counters restart from zero with the process, as Prometheus expects; gauges (jobs by status, queue depth) are
-read live when /metrics is scraped.
+Why the library: its exposition is the standard format (escaping, ``+Inf``, histogram series) and its
+multiprocess mode keeps counters right when the app runs in several uvicorn worker processes: with
+``PROMETHEUS_MULTIPROC_DIR`` set (an empty folder, before the server starts), every worker writes its counts
+there and a scrape of any worker sums them all. Counters restart from zero with the server, as Prometheus expects;
+gauges (jobs by status, queue depth, readiness, memory) are read live when /metrics is scraped, from the worker
+that answers.
 """
 
 from __future__ import annotations
@@ -9,77 +13,94 @@ from __future__ import annotations
 import os
 import resource
 import threading
-from collections import defaultdict
+from collections.abc import Iterator
+from typing import Any
+
+import prometheus_client
+from prometheus_client import CollectorRegistry, Counter, Histogram, generate_latest, multiprocess
+from prometheus_client.core import GaugeMetricFamily
+from prometheus_client.registry import Collector
 
 BUCKETS = (0.5, 1, 2, 5, 10, 30, 60, 120, 300, 600, 1800, 3600)
+#: ``Content-Type`` of the exposition (text format 0.0.4).
+CONTENT_TYPE = prometheus_client.CONTENT_TYPE_LATEST
+MULTIPROC_ENV = "PROMETHEUS_MULTIPROC_DIR"
+
+prometheus_client.disable_created_metrics()  # no ``*_created`` series: the samples stay those of the counters
 
 
 class Metrics:
+    """The server's counters; :meth:`render` adds the live gauges and returns the exposition text."""
+
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self.submitted = 0
-        self.sync_requests: dict[str, int] = defaultdict(int)
-        self.finished: dict[str, int] = defaultdict(int)
-        self.rejected: dict[str, int] = defaultdict(int)
-        self.frames = 0
-        self.seconds_sum = 0.0
-        self.seconds_count = 0
-        self.bucket_counts = [0] * len(BUCKETS)
+        self._live: dict[str, Any] = {}
+        self.registry = CollectorRegistry(auto_describe=True)
+        r = self.registry
+        self.submitted = Counter("colonlight_jobs_submitted_total", "Jobs accepted by POST /v1/jobs.", registry=r)
+        self.finished = Counter("colonlight_jobs_finished_total", "Jobs finished, by outcome.", ["status"], registry=r)
+        self.sync_requests = Counter("colonlight_sync_requests_total", "POST /v1/enhance requests by outcome.",
+                                     ["outcome"], registry=r)
+        self.rejected = Counter("colonlight_requests_rejected_total", "Uploads refused, by reason.", ["reason"],
+                                registry=r)
+        self.frames = Counter("colonlight_frames_processed_total", "Enhanced frames written.", registry=r)
+        self.seconds = Histogram("colonlight_processing_seconds", "Wall time of finished clips.", buckets=BUCKETS,
+                                 registry=r)
+        # the samples a scrape shows before anything happened (as the hand-written text did)
+        self.finished.labels("succeeded")
+        self.sync_requests.labels("ok")
+        self.rejected.labels("queue_full")
+        r.register(_LiveGauges(self._live, self._lock))
 
     def inc(self, name: str, label: str | None = None, by: int = 1) -> None:
-        with self._lock:
-            if label is None:
-                setattr(self, name, getattr(self, name) + by)
-            else:
-                getattr(self, name)[label] += by
+        counter = getattr(self, name)
+        (counter if label is None else counter.labels(label)).inc(by)
 
     def observe_job(self, status: str, seconds: float) -> None:
-        with self._lock:
-            self.finished[status] += 1
-            self.seconds_sum += seconds
-            self.seconds_count += 1
-            for i, bound in enumerate(BUCKETS):
-                if seconds <= bound:
-                    self.bucket_counts[i] += 1
+        self.finished.labels(status).inc()
+        self.seconds.observe(seconds)
 
     def render(self, jobs_by_status: dict[str, int], queue_depth: int, running: int, workers: int,
                admitted: int, capacity: int, ready: bool) -> str:
-        out: list[str] = []
-
-        def metric(name: str, kind: str, help_text: str, samples: list[tuple[str, float]]) -> None:
-            out.append(f"# HELP {name} {help_text}")
-            out.append(f"# TYPE {name} {kind}")
-            for labels, value in samples:
-                out.append(f"{name}{labels} {value:g}" if isinstance(value, float) else f"{name}{labels} {value}")
-
         with self._lock:
-            metric("colonlight_jobs", "gauge", "Jobs on record by status.",
-                   [(f'{{status="{s}"}}', n) for s, n in sorted(jobs_by_status.items())])
-            metric("colonlight_queue_depth", "gauge", "Jobs waiting for a worker.", [("", queue_depth)])
-            metric("colonlight_jobs_running", "gauge", "Jobs being processed now.", [("", running)])
-            metric("colonlight_workers", "gauge", "Clips processed at once at most.", [("", workers)])
-            metric("colonlight_admitted", "gauge", "Jobs admitted now (queued, running or uploading).", [("", admitted)])
-            metric("colonlight_capacity", "gauge", "Jobs admitted at once at most (workers + queue size).", [("", capacity)])
-            metric("colonlight_ready", "gauge", "1 when the model is loaded and work is accepted.", [("", int(ready))])
-            metric("colonlight_jobs_submitted_total", "counter", "Jobs accepted by POST /v1/jobs.", [("", self.submitted)])
-            metric("colonlight_jobs_finished_total", "counter", "Jobs finished, by outcome.",
-                   [(f'{{status="{s}"}}', n) for s, n in sorted(self.finished.items())] or [('{status="succeeded"}', 0)])
-            metric("colonlight_sync_requests_total", "counter", "POST /v1/enhance requests by outcome.",
-                   [(f'{{outcome="{s}"}}', n) for s, n in sorted(self.sync_requests.items())] or [('{outcome="ok"}', 0)])
-            metric("colonlight_requests_rejected_total", "counter", "Uploads refused, by reason.",
-                   [(f'{{reason="{s}"}}', n) for s, n in sorted(self.rejected.items())] or [('{reason="queue_full"}', 0)])
-            metric("colonlight_frames_processed_total", "counter", "Enhanced frames written.", [("", self.frames)])
-            out.append("# HELP colonlight_processing_seconds Wall time of finished clips.")
-            out.append("# TYPE colonlight_processing_seconds histogram")
-            for bound, n in zip(BUCKETS, self.bucket_counts):
-                out.append(f'colonlight_processing_seconds_bucket{{le="{bound:g}"}} {n}')
-            out.append(f'colonlight_processing_seconds_bucket{{le="+Inf"}} {self.seconds_count}')
-            out.append(f"colonlight_processing_seconds_sum {self.seconds_sum:.6f}")
-            out.append(f"colonlight_processing_seconds_count {self.seconds_count}")
+            self._live.update(jobs=jobs_by_status, queue_depth=queue_depth, running=running, workers=workers,
+                              admitted=admitted, capacity=capacity, ready=ready)
+            if os.environ.get(MULTIPROC_ENV):  # the counters of every worker process, summed
+                registry = CollectorRegistry()
+                multiprocess.MultiProcessCollector(registry)
+                registry.register(_LiveGauges(dict(self._live), threading.Lock()))
+            else:
+                registry = self.registry
+        return generate_latest(registry).decode("utf-8")
+
+
+class _LiveGauges(Collector):
+    """The gauges read at scrape time (the values :meth:`Metrics.render` was given, and this process's memory)."""
+
+    def __init__(self, live: dict[str, Any], lock: threading.Lock) -> None:
+        self.live, self.lock = live, lock
+
+    def collect(self) -> Iterator[GaugeMetricFamily]:
+        live = self.live
+        if not live:
+            return
+        jobs = GaugeMetricFamily("colonlight_jobs", "Jobs on record by status.", labels=["status"])
+        for status, n in sorted(live["jobs"].items()):
+            jobs.add_metric([status], n)
+        yield jobs
+        for name, key, help_text in (
+            ("colonlight_queue_depth", "queue_depth", "Jobs waiting for a worker."),
+            ("colonlight_jobs_running", "running", "Jobs being processed now."),
+            ("colonlight_workers", "workers", "Clips processed at once at most."),
+            ("colonlight_admitted", "admitted", "Jobs admitted now (queued, running or uploading)."),
+            ("colonlight_capacity", "capacity", "Jobs admitted at once at most (workers + queue size)."),
+            ("colonlight_ready", "ready", "1 when the model is loaded and work is accepted."),
+        ):
+            yield GaugeMetricFamily(name, help_text, value=int(live[key]))
         rss, peak = memory_bytes()
-        metric("process_resident_memory_bytes", "gauge", "Resident memory of the server process.", [("", rss)])
-        metric("process_peak_resident_memory_bytes", "gauge", "Peak resident memory of the server process.", [("", peak)])
-        return "\n".join(out) + "\n"
+        yield GaugeMetricFamily("process_resident_memory_bytes", "Resident memory of the server process.", value=rss)
+        yield GaugeMetricFamily("process_peak_resident_memory_bytes", "Peak resident memory of the server process.",
+                                value=peak)
 
 
 def memory_bytes() -> tuple[int, int]:

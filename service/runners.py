@@ -9,13 +9,12 @@ A runner takes one clip (``ClipJob``, ``MethodSpec``, ``ClipOptions``) and retur
 * :class:`ClusterRunner`: ``COLONLIGHT_CLUSTER=tcp://host:8786`` sends clips to a Dask cluster through
   ``colonlight.cluster`` (imported only then). Job folders must be on storage the cluster's workers share.
 
-Both call the same per-clip pipeline as ``colonlight enhance`` (``colonlight.pipeline.enhance_clip``).
+Both run a clip as ``colonlight enhance`` does (``colonlight.run_clip``).
 """
 
 from __future__ import annotations
 
 import threading
-import time
 import traceback
 from collections import OrderedDict
 from collections.abc import Callable
@@ -23,10 +22,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from colonlight.batch import ClipJob, ClipOutcome, MethodSpec
-from colonlight.errors import ColonlightError
-from colonlight.methods import Method
-from colonlight.pipeline import ClipOptions, enhance_clip
+from colonlight import ClipJob, ClipOptions, ClipOutcome, ColonlightError, Method, MethodSpec, run_clip
 
 from .errors import is_disk_full
 
@@ -79,7 +75,7 @@ class MethodCache:
         return method
 
     def get(self, spec: MethodSpec) -> Method:
-        """The method for ``spec``, built on first use (ValueError / ColonlightError for bad options)."""
+        """The method for ``spec``, built on first use (OptionError, a ColonlightError, for bad options)."""
         with self._lock:
             if spec in self._pinned:
                 return self._pinned[spec]
@@ -103,9 +99,20 @@ class MethodCache:
         return method
 
 
+def service_wording(job: ClipJob, exc: Exception) -> tuple[str, str | None]:
+    """The service's words for a clip that raised (``colonlight.run_clip``'s ``wording``): a stop and a full data
+    folder are told apart by ``detail``; no line names a server path beyond what ``JobManager.scrub`` removes."""
+    if isinstance(exc, Stopped):
+        return f"stopped: {exc.reason}", "stopped"
+    if is_disk_full(exc):
+        return NO_SPACE, DISK_FULL
+    if isinstance(exc, (ColonlightError, ValueError)):  # a ValueError from deep in a clip is the clip's, too
+        return str(exc), None
+    return f"internal error: {type(exc).__name__}: {exc}", traceback.format_exc()
+
+
 def run_one(job: ClipJob, method: Method, opts: ClipOptions, hooks: ClipHooks) -> ClipOutcome:
-    """One clip through ``enhance_clip``; like ``colonlight.batch.run_clip`` it never raises for a bad clip."""
-    t0 = time.perf_counter()
+    """One clip through the engine's ``run_clip`` (always overwriting: a job folder is new), with the hooks."""
     if not hooks.started():
         return ClipOutcome(job.name, str(job.source), "failed", error="cancelled before it started")
 
@@ -114,20 +121,7 @@ def run_one(job: ClipJob, method: Method, opts: ClipOptions, hooks: ClipHooks) -
             raise Stopped(hooks.stop_reason)
         hooks.frames(n)
 
-    try:
-        result = enhance_clip(job.source, job.out_dir, method, opts, clip_name=job.name, on_frame=on_frame)
-        return ClipOutcome(job.name, str(job.source), "done", frames=result.frames, seconds=result.seconds)
-    except Stopped as exc:
-        return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0,
-                           error=f"stopped: {exc.reason}", detail="stopped")
-    except Exception as exc:  # noqa: BLE001 - a bug must fail this job, not the server
-        if is_disk_full(exc):
-            return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0,
-                               error=NO_SPACE, detail=DISK_FULL)
-        if isinstance(exc, (ColonlightError, ValueError)):
-            return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0, error=str(exc))
-        return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0,
-                           error=f"internal error: {type(exc).__name__}: {exc}", detail=traceback.format_exc())
+    return run_clip(job, method, opts, overwrite=True, on_frame=on_frame, wording=service_wording)
 
 
 class LocalRunner:
@@ -141,7 +135,7 @@ class LocalRunner:
         def work() -> ClipOutcome:
             try:
                 method = self.methods.get(spec)
-            except (ColonlightError, ValueError) as exc:
+            except ColonlightError as exc:
                 hooks.started()
                 return ClipOutcome(job.name, str(job.source), "failed", error=str(exc))
             return run_one(job, method, opts, hooks)

@@ -7,6 +7,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from colonlight.limits import DEFAULT_FPS, MAX_FPS
 from colonlight.methods import available_methods
 
 METHODS = available_methods()
@@ -21,7 +22,7 @@ class JobOptions(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    fps: float | None = Field(None, ge=0, le=240, description="Extraction rate; 0 keeps every frame (default: the server's, 18).")
+    fps: float | None = Field(None, ge=0, le=int(MAX_FPS), description=f"Extraction rate; 0 keeps every frame (default: the server's, {DEFAULT_FPS:g}).")
     method: str | None = Field(None, description="Enhancement method (default: the server's, rnn).")
     model_size: str | None = Field(None, description="rnn only: network input side in pixels (8..1024) or 'full'; default: the size the weights were trained at (48 for the shipped model).")
     gamma: float | None = Field(None, gt=0, le=10, description="method=gamma only: the exponent (out = in ** gamma).")
@@ -59,7 +60,7 @@ class JobOptions(BaseModel):
 def upload_request_body(description: str) -> dict[str, Any]:
     props: dict[str, Any] = {
         "file": {"type": "string", "format": "binary", "description": "The clip: any video FFmpeg decodes (mp4, mov, avi, mkv, ...)."},
-        "fps": {"type": "number", "minimum": 0, "maximum": 240, "description": JobOptions.model_fields["fps"].description, "example": 18},
+        "fps": {"type": "number", "minimum": 0, "maximum": int(MAX_FPS), "description": JobOptions.model_fields["fps"].description, "example": int(DEFAULT_FPS)},
         "method": {"type": "string", "enum": METHODS, "description": JobOptions.model_fields["method"].description, "example": "rnn"},
         "model_size": {"type": "string", "pattern": "^(full|[0-9]{1,4})$", "description": JobOptions.model_fields["model_size"].description, "example": "64"},
         "gamma": {"type": "number", "exclusiveMinimum": 0, "maximum": 10, "description": JobOptions.model_fields["gamma"].description},

@@ -5,18 +5,16 @@ Every setting has a default that works on a laptop; ``create_app(Settings(...))`
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from colonlight.limits import DEFAULT_MAX_PIXELS
+from colonlight.limits import DEFAULT_FPS, DEFAULT_MAX_PIXELS, MAX_FPS, available_cores
 
 
 def _default_workers() -> int:
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, cores // 2)
+    return max(1, available_cores() // 2)
 
 
 class Settings(BaseSettings):
@@ -55,7 +53,7 @@ class Settings(BaseSettings):
     weights: Path | None = Field(None, description="Checkpoint for rnn (default: the shipped model).")
     model_size: str | None = Field(None, description="Default network input size for rnn (pixels or 'full').")
     device: str = Field("auto", description="auto | cpu | cuda | cuda:N.")
-    fps: float = Field(18.0, ge=0, le=240, description="Default extraction rate (0 keeps every frame).")
+    fps: float = Field(DEFAULT_FPS, ge=0, le=MAX_FPS, description="Default extraction rate (0 keeps every frame).")
     cluster: str | None = Field(None, description="Dask scheduler address: run clips there instead of locally.")
     method_cache: int = Field(4, ge=1, le=64, description="Methods with non-default options kept loaded (LRU).")
     torch_threads: int | None = Field(None, ge=1, description="torch intra-op threads (default: cores / workers).")

@@ -3,7 +3,6 @@ the image header before anything is decoded (a small PNG can claim 8000 x 8000 a
 
 from __future__ import annotations
 
-import os
 import struct
 from dataclasses import dataclass
 from typing import Literal
@@ -11,7 +10,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from colonlight.limits import DEFAULT_MAX_PIXELS, MAX_PIXELS_ENV
+from colonlight.limits import DEFAULT_MAX_PIXELS, MAX_PIXELS_ENV, max_pixels_setting
 
 ImageFormat = Literal["jpeg", "png"]
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -27,8 +26,10 @@ class FrameError(ValueError):
 
 def max_pixels() -> int:
     """The pixel cap: ``COLONLIGHT_MAX_PIXELS`` when set (the CLI and service share it), else the default."""
-    value = os.environ.get(MAX_PIXELS_ENV, "").strip()
-    return int(value) if value.isdigit() and int(value) > 0 else DEFAULT_MAX_PIXELS
+    try:
+        return max_pixels_setting()
+    except ValueError:  # the server's settings refuse such a value at start-up; a test may set it later
+        return DEFAULT_MAX_PIXELS
 
 
 @dataclass(frozen=True)

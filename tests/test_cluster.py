@@ -232,7 +232,7 @@ def test_batch_on_cluster_is_byte_identical_to_local(
     assert _outputs(out) == local_run
     assert not list(out.rglob(f"{MARKER_NAME}*")), "check markers must not be left behind"
     # Both workers took part (each holds the model it loaded once, cached per method spec).
-    cached = cluster.client.run(lambda: len(__import__("colonlight.batch").batch._WORKER_METHODS))
+    cached = cluster.client.run(lambda: len(__import__("colonlight.jobs").jobs._METHODS))
     assert len(cached) == 2 and all(n >= 1 for n in cached.values()), cached
 
     # Same resume semantics: a rerun skips every complete clip and changes no output.

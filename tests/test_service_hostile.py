@@ -133,7 +133,7 @@ def test_pixel_bomb_is_refused_at_upload_from_its_header(client: httpx.Client, s
     assert growth < 64 * MiB, f"the server's peak memory grew by {growth / MiB:.0f} MiB for a refused bomb"
     assert job_files(server) == jobs_before  # no job was made
     assert leftovers(server) == []
-    assert 'colonlight_requests_rejected_total{reason="too_many_pixels"} 2' in client.get("/metrics").text
+    assert 'colonlight_requests_rejected_total{reason="too_many_pixels"} 2.0' in client.get("/metrics").text
     assert post(client, "/v1/jobs", clips["ok"]).status_code == 202  # ordinary clips still pass the check
 
 

@@ -67,7 +67,7 @@ def test_queue_full_is_503_with_retry_after(server: ServiceServer, clip: Path) -
             assert wait_done(c, r.headers["location"], timeout=90)["status"] == "succeeded"
         assert c.get("/readyz").status_code == 200
         metrics = c.get("/metrics").text
-        assert f'colonlight_requests_rejected_total{{reason="queue_full"}} {len(refused)}' in metrics
+        assert f'colonlight_requests_rejected_total{{reason="queue_full"}} {float(len(refused))}' in metrics
     assert leftovers(server) == []
 
 

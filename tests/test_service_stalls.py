@@ -124,8 +124,8 @@ def test_stalled_uploads_do_not_starve_honest_clients(server: ServiceServer, cli
         assert again.status_code == 202, again.text
         assert wait_done(c, again.headers["location"], timeout=60)["status"] == "succeeded"
         metrics = c.get("/metrics").text
-        assert f'colonlight_requests_rejected_total{{reason="stalled"}} {MAX_UPLOADS}' in metrics
-        assert 'colonlight_requests_rejected_total{reason="too_many_uploads"} 1' in metrics
+        assert f'colonlight_requests_rejected_total{{reason="stalled"}} {float(MAX_UPLOADS)}' in metrics
+        assert 'colonlight_requests_rejected_total{reason="too_many_uploads"} 1.0' in metrics
 
 
 def test_slow_upload_that_keeps_progressing_is_not_cut_off(server: ServiceServer, clip: Path) -> None:

@@ -24,9 +24,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..batch import discover_clips
+from ..discovery import discover_clips
 from ..errors import InputError
 from ..frames import list_image_frames, read_image
+from ..limits import DEFAULT_FPS
 from ..sources import clip_frames
 from ..synth import SynthConfig, decode_depth, write_clip
 from ..synth.config import Split
@@ -34,7 +35,6 @@ from ..synth.writer import read_tum
 
 SYNTH_MARKER = "synth.json"
 DEFAULT_MAX_SIZE = 256
-DEFAULT_FPS = 18.0
 #: Seeds of the benchmark's clips start here: training used 1000-1099 and the quality gate 700000-700023.
 BENCHMARK_SEED0 = 800_000
 

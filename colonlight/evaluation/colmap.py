@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from ..frames import encode_image
+from ..limits import DEFAULT_FPS
 
 APE_STATS = ("rmse", "mean", "median", "std", "min", "max")
 #: Fewer registered frames than this give no ATE: a similarity fitted to 2 points leaves rotation free.
@@ -103,7 +104,7 @@ def run_colmap(
     frames: Sequence[np.ndarray],
     K: np.ndarray | None = None,
     gt_poses: Sequence[np.ndarray] | None = None,
-    fps: float = 18.0,
+    fps: float = DEFAULT_FPS,
     settings: ColmapSettings = ColmapSettings(),
 ) -> ColmapResult:
     """Reconstruct ``frames`` (RGB uint8, in order) with COLMAP; ATE against ``gt_poses`` when given.
@@ -177,7 +178,7 @@ def _run(
 
 
 def ate_statistics(
-    estimated: dict[int, np.ndarray], ground_truth: Sequence[np.ndarray], fps: float = 18.0
+    estimated: dict[int, np.ndarray], ground_truth: Sequence[np.ndarray], fps: float = DEFAULT_FPS
 ) -> dict[str, float]:
     """Absolute trajectory error (translation, metres) of ``estimated`` frame poses against ``ground_truth``.
 

@@ -23,6 +23,7 @@ import numpy as np
 from .. import __version__
 from ..atomic import write_bytes_atomic, write_json_atomic
 from ..frames import encode_image
+from ..limits import DEFAULT_FPS
 from ..provenance import distribution_versions, library_versions
 from .breakdown import CAUSES
 from .runner import EvaluationResult, failure_breakdown, summarize
@@ -434,7 +435,7 @@ def clip_plot(result: EvaluationResult, clip_index: int) -> str:
     fig = Figure(figsize=(9, 4.6 if with_gamma else 2.8))
     axes = fig.subplots(2 if with_gamma else 1, 1, sharex=True, squeeze=False)[:, 0]
     ax = axes[0]
-    fps = float(c.info.get("fps") or 18.0)
+    fps = float(c.info.get("fps") or DEFAULT_FPS)
     t = np.arange(len(c.luma_in)) / fps
     ax.plot(t, c.luma_in, color="black", lw=2, ls="--", label="input")
     for label, r in c.results.items():

@@ -536,7 +536,7 @@ def build_methods(
     for spec in methods:
         try:
             m = spec.build()
-        except (ColonlightError, ValueError, OSError) as exc:
+        except (ColonlightError, OSError) as exc:
             skipped[spec.label] = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             continue
         built.append((spec, m))

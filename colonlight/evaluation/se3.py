@@ -2,15 +2,16 @@
 
 Twists are ``xi = (v, w)``: translation part first, then the rotation vector (axis * angle, radians), as in
 Sophus/DSO. ``exp`` maps a twist to a 4x4 rigid transform, ``log`` is its inverse for rotation angles below
-pi. Small-angle branches use Taylor series so both stay accurate (and differentiable in spirit) near zero,
-where the tracker's Gauss-Newton increments live.
+pi. The rotations (SO(3): rotation vector <-> matrix, geodesic angle) are scipy's ``Rotation`` (the eval
+extra); what scipy has no map for, the coupling of translation and rotation in SE(3) (the left Jacobian ``V``
+and its inverse), is written here, with Taylor series near zero where the tracker's Gauss-Newton increments
+live.
 """
 
 from __future__ import annotations
 
 import numpy as np
-
-_SMALL = 1e-8
+from scipy.spatial.transform import Rotation
 
 
 def hat(w: np.ndarray) -> np.ndarray:
@@ -28,30 +29,15 @@ def _coefficients(theta: float) -> tuple[float, float, float]:
 
 
 def so3_exp(w: np.ndarray) -> np.ndarray:
-    """Rotation matrix of the rotation vector ``w`` (Rodrigues)."""
-    theta = float(np.linalg.norm(w))
-    a, b, _ = _coefficients(theta)
-    W = hat(w)
-    return np.eye(3) + a * W + b * (W @ W)
+    """Rotation matrix of the rotation vector ``w``."""
+    matrix: np.ndarray = Rotation.from_rotvec(np.asarray(w, dtype=np.float64)).as_matrix()
+    return matrix
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:
     """Rotation vector of ``R`` (angle in [0, pi]); robust near 0 and near pi."""
-    cos_t = float(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))
-    theta = float(np.arccos(cos_t))
-    v = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])  # sin(t) * axis
-    if theta < 1e-4:
-        return v * (1.0 + theta * theta / 6.0)
-    if theta < np.pi - 1e-3:
-        return v * (theta / np.sin(theta))
-    # Near pi sin(t) vanishes: read the axis from the symmetric part, cos(t) I + (1 - cos(t)) aa^T.
-    S = ((R + R.T) / 2.0 - cos_t * np.eye(3)) / (1.0 - cos_t)
-    k = int(np.argmax(np.diag(S)))
-    axis = S[:, k] / np.sqrt(max(S[k, k], _SMALL))
-    axis /= np.linalg.norm(axis)
-    if axis @ v < 0:
-        axis = -axis
-    return axis * theta
+    rotvec: np.ndarray = Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_rotvec()
+    return rotvec
 
 
 def exp(xi: np.ndarray) -> np.ndarray:
@@ -61,11 +47,11 @@ def exp(xi: np.ndarray) -> np.ndarray:
         raise ValueError(f"a twist has 6 components, got shape {xi.shape}")
     v, w = xi[:3], xi[3:]
     theta = float(np.linalg.norm(w))
-    a, b, c = _coefficients(theta)
+    _, b, c = _coefficients(theta)
     W = hat(w)
     W2 = W @ W
     T = np.eye(4)
-    T[:3, :3] = np.eye(3) + a * W + b * W2
+    T[:3, :3] = so3_exp(w)
     T[:3, 3] = (np.eye(3) + b * W + c * W2) @ v
     return T
 
@@ -97,7 +83,7 @@ def inverse(T: np.ndarray) -> np.ndarray:
 
 def rotation_angle_deg(R: np.ndarray) -> float:
     """Geodesic angle of a rotation matrix, in degrees (numerically safe for tiny angles)."""
-    return float(np.degrees(np.linalg.norm(so3_log(R))))
+    return float(np.degrees(Rotation.from_matrix(np.asarray(R, dtype=np.float64)).magnitude()))
 
 
 def orthonormalize(T: np.ndarray) -> np.ndarray:

@@ -20,10 +20,10 @@ from typing import Any, BinaryIO
 
 from .. import __version__
 from ..atomic import write_json_atomic
-from ..errors import ColonlightError, InputError
+from ..errors import ColonlightError, InputError, OptionError
 from ..methods.base import FrameResult, Method
 from ..provenance import library_versions
-from ..video import DEFAULT_FPS
+from ..limits import DEFAULT_FPS
 from .handoff import DROP_POLICIES, FrameHandoff, HandoffClosed
 from .outputs import FRAMES_DIR, LOG_FILE, SUMMARY_FILE, FrameFolder, FrameOutput, GammaLog, PipeClosed, open_pipe
 from .reader import LiveFrame, StreamReader
@@ -56,11 +56,11 @@ class StreamOptions:
 
     def __post_init__(self) -> None:
         if self.drop != "auto" and self.drop not in DROP_POLICIES:
-            raise ValueError(f"drop must be auto or one of {', '.join(DROP_POLICIES)}, got {self.drop!r}")
+            raise OptionError(f"drop must be auto or one of {', '.join(DROP_POLICIES)}, got {self.drop!r}")
         if self.buffer < 1:
-            raise ValueError(f"buffer must be >= 1, got {self.buffer}")
+            raise OptionError(f"buffer must be >= 1, got {self.buffer}")
         if self.timeout_s <= 0:
-            raise ValueError(f"timeout must be > 0, got {self.timeout_s}")
+            raise OptionError(f"timeout must be > 0, got {self.timeout_s}")
 
 
 @dataclass(frozen=True)

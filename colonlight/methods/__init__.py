@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+from ..errors import OptionError
 from .base import FrameResult, Method, MethodStream
 
 # name -> "module:Class"; the class's constructor takes the method's options as keyword arguments.
@@ -49,11 +50,11 @@ def available_methods() -> list[str]:
 def create_method(name: str, **options: Any) -> Method:
     """Build the method called ``name`` with its options (unknown names raise ``ValueError``)."""
     if name not in _REGISTRY:
-        raise ValueError(f"unknown method {name!r}; choose one of {', '.join(_REGISTRY)}")
+        raise OptionError(f"unknown method {name!r}; choose one of {', '.join(_REGISTRY)}")
     try:
         cls = _load(name)
     except (ImportError, AttributeError) as exc:
-        raise ValueError(f"method {name!r} is not available in this installation: {exc}") from exc
+        raise OptionError(f"method {name!r} is not available in this installation: {exc}") from exc
     return cls(**options)
 
 

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import OptionError
 from .base import FrameResult, Method, MethodStream, check_frame
 from .histogram import scale_value, value_channel
 
@@ -75,7 +76,7 @@ class AgcwdMethod(Method):
     def __init__(self, alpha: float = 0.5) -> None:
         alpha = float(alpha)
         if not math.isfinite(alpha) or alpha <= 0:
-            raise ValueError(f"alpha must be finite and > 0, got {alpha!r}")
+            raise OptionError(f"alpha must be finite and > 0, got {alpha!r}")
         self.alpha = alpha
 
     def stream(self) -> MethodStream:

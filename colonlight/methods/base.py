@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
+from ..errors import FrameShapeError
 
 
 @dataclass(frozen=True)
@@ -67,4 +68,4 @@ def check_frame(frame: np.ndarray) -> None:
     if not isinstance(frame, np.ndarray) or frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
         shape = getattr(frame, "shape", None)
         dtype = getattr(frame, "dtype", type(frame).__name__)
-        raise ValueError(f"expected an (H, W, 3) uint8 RGB frame, got shape {shape} dtype {dtype}")
+        raise FrameShapeError(f"expected an (H, W, 3) uint8 RGB frame, got shape {shape} dtype {dtype}")

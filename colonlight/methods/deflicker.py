@@ -25,6 +25,7 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 
+from ..errors import OptionError
 from .base import FrameResult, Method, MethodStream, check_frame
 
 MODES = ("am", "gm", "hm", "qm", "cm", "pm", "median")
@@ -251,7 +252,7 @@ def deflicker_factor(window: Sequence[float], mode: str = "am", ffmpeg_compatibl
         The factor (may be inf or nan only in compatible mode).
     """
     if mode not in MODES:
-        raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+        raise OptionError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
     if ffmpeg_compatible:
         with np.errstate(all="ignore"):
             return float(_mean_f32(window, mode) / np.float32(window[0]))
@@ -418,9 +419,9 @@ class DeflickerMethod(Method):
 
     def __init__(self, size: int = 5, mode: str = "am", ffmpeg_compatible: bool = False) -> None:
         if isinstance(size, bool) or int(size) != size or not MIN_SIZE <= int(size) <= MAX_SIZE:
-            raise ValueError(f"size must be an integer in {MIN_SIZE}..{MAX_SIZE}, got {size!r}")
+            raise OptionError(f"size must be an integer in {MIN_SIZE}..{MAX_SIZE}, got {size!r}")
         if mode not in MODES:
-            raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+            raise OptionError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
         self.size = int(size)
         self.mode = mode
         self.ffmpeg_compatible = bool(ffmpeg_compatible)

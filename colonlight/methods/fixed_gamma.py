@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..curves import apply_lut, gamma_lut
+from ..errors import OptionError
 from .base import FrameResult, Method, MethodStream, check_frame
 
 
@@ -38,7 +39,7 @@ class FixedGammaMethod(Method):
     def __init__(self, gamma: float = 0.7) -> None:
         gamma = float(gamma)
         if not math.isfinite(gamma) or gamma <= 0:
-            raise ValueError(f"gamma must be finite and > 0, got {gamma!r}")
+            raise OptionError(f"gamma must be finite and > 0, got {gamma!r}")
         self.gamma = gamma
         self._lut = gamma_lut(gamma)
 

@@ -13,6 +13,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ..errors import OptionError
 from .base import FrameResult, Method, MethodStream, check_frame
 
 _CLAHE_SPACES = ("lab", "hsv")
@@ -119,12 +120,12 @@ class ClaheMethod(Method):
     ) -> None:
         clip_limit = float(clip_limit)
         if not math.isfinite(clip_limit) or clip_limit < 0:
-            raise ValueError(f"clip_limit must be finite and >= 0, got {clip_limit!r}")
+            raise OptionError(f"clip_limit must be finite and >= 0, got {clip_limit!r}")
         grid = tuple(int(t) for t in tile_grid)
         if len(grid) != 2 or min(grid) < 1:
-            raise ValueError(f"tile_grid must be two positive integers, got {tile_grid!r}")
+            raise OptionError(f"tile_grid must be two positive integers, got {tile_grid!r}")
         if space not in _CLAHE_SPACES:
-            raise ValueError(f"space must be one of {', '.join(_CLAHE_SPACES)}, got {space!r}")
+            raise OptionError(f"space must be one of {', '.join(_CLAHE_SPACES)}, got {space!r}")
         self.clip_limit = clip_limit
         self.tile_grid: tuple[int, int] = (grid[0], grid[1])
         self.space = space

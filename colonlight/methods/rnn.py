@@ -20,6 +20,7 @@ from ..checkpoint import LoadedWeights, load_weights
 from ..correction import gain_gamma_values
 from ..curves import apply_gamma, apply_lut, gain_gamma_lut
 from ..device import resolve_device
+from ..errors import OptionError
 from ..model import State
 from .base import FrameResult, Method, MethodStream, check_frame
 from .rnn_onnx import make_step
@@ -150,7 +151,7 @@ class RecurrentGammaMethod(Method):
         if seeds is None:  # what the weights were trained with (the card), else the release's 2
             seeds = self.weights.seed_frames if self.weights.seed_frames is not None else SEED_FRAMES
         if seeds < 0:
-            raise ValueError(f"seeds must be >= 0, got {seeds}")
+            raise OptionError(f"seeds must be >= 0, got {seeds}")
         self.seeds = seeds
         self.runtime = runtime
         self.step = make_step(self.weights, self.model_size, self.device, runtime)  # net.step or ONNX Runtime's
@@ -186,7 +187,7 @@ def parse_model_size(value: int | str | None, trained_at: int | None = None) -> 
     try:
         size = int(value)
     except (TypeError, ValueError):
-        raise ValueError(f"model size must be a positive integer, 'full' or 'auto', got {value!r}") from None
+        raise OptionError(f"model size must be a positive integer, 'full' or 'auto', got {value!r}") from None
     if size < 8:
-        raise ValueError(f"model size must be at least 8 pixels, got {size}")
+        raise OptionError(f"model size must be at least 8 pixels, got {size}")
     return size

@@ -20,6 +20,7 @@ import torch
 from .. import __version__
 from ..atomic import write_bytes_atomic
 from ..checkpoint import LoadedWeights
+from ..errors import OptionError
 from ..onnx_step import ExportError, StepSignature, compare_with_torch, cpu_session, export_model_bytes, step_signature
 
 RUNTIMES = ("torch", "onnxruntime")
@@ -73,7 +74,7 @@ class OnnxStep:
     def __init__(self, weights: LoadedWeights, size: int) -> None:
         self.signature: StepSignature = step_signature(weights, size)[0]
         if len(self.signature.head_names) != 1:
-            raise ValueError(f"--runtime onnxruntime runs networks with one output tensor; these weights have "
+            raise OptionError(f"--runtime onnxruntime runs networks with one output tensor; these weights have "
                              f"{', '.join(self.signature.head_names)}")
         self.session = _session(weights, size)
 
@@ -89,13 +90,13 @@ def make_step(weights: LoadedWeights, size: int | None, device: torch.device, ru
     if runtime == "torch":
         return weights.net.step  # type: ignore[return-value]
     if runtime != "onnxruntime":
-        raise ValueError(f"unknown runtime {runtime!r}; choose {' or '.join(RUNTIMES)}")
+        raise OptionError(f"unknown runtime {runtime!r}; choose {' or '.join(RUNTIMES)}")
     if size is None:
-        raise ValueError("--runtime onnxruntime needs a fixed network input size (not --model-size full)")
+        raise OptionError("--runtime onnxruntime needs a fixed network input size (not --model-size full)")
     if device.type != "cpu":
-        raise ValueError(f"--runtime onnxruntime runs on the CPU, not {device} (use --device cpu)")
+        raise OptionError(f"--runtime onnxruntime runs on the CPU, not {device} (use --device cpu)")
     try:
         import onnxruntime  # noqa: F401
     except ImportError:
-        raise ValueError("--runtime onnxruntime needs the export extra: pip install 'colonlight[export]'") from None
+        raise OptionError("--runtime onnxruntime needs the export extra: pip install 'colonlight[export]'") from None
     return OnnxStep(weights, size)

@@ -26,7 +26,7 @@ import torch
 import torch.nn.functional as F
 
 from ..device import resolve_device
-from ..errors import CheckpointError
+from ..errors import CheckpointError, OptionError
 from .base import FrameResult, Method, MethodStream, check_frame
 from .zerodce_loss import (
     LossWeights,
@@ -73,7 +73,7 @@ class _ZeroDceBase(Method):
 
     def __init__(self, weights: str | Path | None, device: str, iterations: int) -> None:
         if isinstance(iterations, bool) or int(iterations) != iterations or int(iterations) < 1:
-            raise ValueError(f"iterations must be a positive integer, got {iterations!r}")
+            raise OptionError(f"iterations must be a positive integer, got {iterations!r}")
         self.iterations = int(iterations)
         self.weights = None if weights is None else str(weights)
         self.device = resolve_device(device)
@@ -133,9 +133,9 @@ class ZeroDceMethod(_ZeroDceBase):
         max_side: int | None = 512,
     ) -> None:
         if iterations not in range(1, DceNet.n_maps + 1):
-            raise ValueError(f"iterations must be 1..{DceNet.n_maps} for Zero-DCE, got {iterations!r}")
+            raise OptionError(f"iterations must be 1..{DceNet.n_maps} for Zero-DCE, got {iterations!r}")
         if max_side is not None and (int(max_side) != max_side or max_side < 0):
-            raise ValueError(f"max_side must be a positive integer or None, got {max_side!r}")
+            raise OptionError(f"max_side must be a positive integer or None, got {max_side!r}")
         self.max_side = int(max_side) if max_side else None
         super().__init__(weights, device, iterations)
 
@@ -175,7 +175,7 @@ class ZeroDcePlusPlusMethod(_ZeroDceBase):
         self, weights: str | Path | None = None, device: str = "cpu", scale: int = 12, iterations: int = 8
     ) -> None:
         if isinstance(scale, bool) or int(scale) != scale or int(scale) < 1:
-            raise ValueError(f"scale must be a positive integer, got {scale!r}")
+            raise OptionError(f"scale must be a positive integer, got {scale!r}")
         self.scale = int(scale)
         super().__init__(weights, device, iterations)
 

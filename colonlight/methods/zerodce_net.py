@@ -23,7 +23,7 @@ from torch import nn
 
 from ..atomic import atomic_path, write_json_atomic
 from ..checkpoint import read_card
-from ..errors import CheckpointError
+from ..errors import CheckpointError, OptionError
 
 VARIANTS = ("zerodce", "zerodce++")
 WEIGHTS_FORMAT = "colonlight-zerodce"
@@ -107,7 +107,7 @@ def build_net(variant: str) -> DceNet | DcePlusPlusNet:
         return DceNet()
     if variant == "zerodce++":
         return DcePlusPlusNet()
-    raise ValueError(f"variant must be one of {', '.join(VARIANTS)}, got {variant!r}")
+    raise OptionError(f"variant must be one of {', '.join(VARIANTS)}, got {variant!r}")
 
 
 def count_parameters(net: nn.Module) -> int:
@@ -137,7 +137,7 @@ def apply_curves(x: torch.Tensor, alphas: torch.Tensor, iterations: int) -> torc
     """
     n = alphas.shape[1] // 3
     if n > 1 and iterations > n:
-        raise ValueError(f"{n} curve maps allow at most {n} iterations, got {iterations}")
+        raise OptionError(f"{n} curve maps allow at most {n} iterations, got {iterations}")
     inplace = not (torch.is_grad_enabled() and (x.requires_grad or alphas.requires_grad))
     if inplace:  # inference: one buffer, fused multiply-add (within 1e-5 of the out-of-place steps)
         x = x.clone()

@@ -15,6 +15,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from ..limits import DEFAULT_FPS
+
 Split = Literal["train", "heldout"]
 OccluderMode = Literal["random", "force", "forbid"]
 
@@ -137,7 +139,7 @@ class SynthConfig:
     width: int = 256
     height: int = 256
     n_frames: int = 100
-    fps: float = 18.0
+    fps: float = DEFAULT_FPS
     steady: bool = False
     undisturbed_seeds: bool = False
     close_occluder: OccluderMode = "random"

@@ -10,6 +10,7 @@ from colonlight import __version__
 
 from ..deps import Authenticated, ManagerDep
 from ..errors import error_responses
+from ..metrics import CONTENT_TYPE
 from ..schemas import METHODS, ServiceInfo
 
 router = APIRouter(dependencies=[Authenticated])
@@ -20,7 +21,7 @@ router = APIRouter(dependencies=[Authenticated])
     tags=["metrics"],
     summary="Prometheus metrics: jobs by status, frames processed, processing seconds, queue depth",
     response_class=PlainTextResponse,
-    responses={200: {"content": {"text/plain": {"example": "# TYPE colonlight_queue_depth gauge\ncolonlight_queue_depth 0\n"}},
+    responses={200: {"content": {"text/plain": {"example": "# TYPE colonlight_queue_depth gauge\ncolonlight_queue_depth 0.0\n"}},
                      "description": "Prometheus text exposition format 0.0.4."},
                **error_responses(401)},
 )
@@ -30,7 +31,7 @@ async def metrics(manager: ManagerDep) -> PlainTextResponse:
     waiting, running, admitted = manager.queue_state()
     s = manager.settings
     text = manager.metrics.render(counts, waiting, running, s.workers, admitted, s.capacity, manager.readiness()[0])
-    return PlainTextResponse(text, media_type="text/plain; version=0.0.4; charset=utf-8")
+    return PlainTextResponse(text, media_type=CONTENT_TYPE)
 
 
 @router.get("/v1/info", tags=["info"], summary="Version, methods, defaults and limits of this server",

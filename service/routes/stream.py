@@ -47,8 +47,7 @@ from fastapi import APIRouter, WebSocket
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from starlette.websockets import WebSocketDisconnect
 
-from colonlight.errors import ColonlightError
-from colonlight.methods import FrameResult, MethodStream
+from colonlight import ColonlightError, FrameResult, MethodStream
 
 from ..deps import key_is_valid
 from ..errors import ApiError
@@ -210,7 +209,7 @@ class StreamSession:
         except ApiError as exc:
             close = CLOSE_POLICY if exc.status == 422 else CLOSE_INTERNAL
             raise Closing(close, exc.code, exc.message, exc.code) from None
-        except (ColonlightError, ValueError) as exc:
+        except ColonlightError as exc:
             raise Closing(CLOSE_INTERNAL, "model_unavailable", f"the model could not be loaded: {exc}",
                           "model unavailable") from None
         self.options = options
@@ -261,7 +260,7 @@ class StreamSession:
                 return meta, stream.push(frame)
             except FrameError:
                 raise
-            except (ColonlightError, ValueError) as exc:  # e.g. a method that needs every frame the same size
+            except ColonlightError as exc:  # FrameShapeError: e.g. a method that needs every frame the same size
                 raise FrameError(str(exc)) from None
 
         meta, results = await anyio.to_thread.run_sync(decode_and_push)
