@@ -15,9 +15,13 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
+# EXTRAS adds optional extras to `make install`/`make demo`, e.g. EXTRAS=eval or EXTRAS=eval,cluster,export,docs
+# (`make install-test` has all of them: the test extra includes their packages).
+EXTRAS     ?=
+
 install: $(BIN)/python
 	$(BIN)/pip install --quiet $(TORCH_SPEC)
-	$(BIN)/pip install --quiet -e .
+	$(BIN)/pip install --quiet -e ".$(if $(EXTRAS),[$(EXTRAS)])"
 
 install-test: $(BIN)/python browser
 	$(BIN)/pip install --quiet $(TORCH_SPEC)

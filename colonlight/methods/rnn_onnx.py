@@ -20,6 +20,7 @@ import torch
 from .. import __version__
 from ..atomic import write_bytes_atomic
 from ..checkpoint import LoadedWeights
+from ..extras import install_command
 from ..onnx_step import ExportError, StepSignature, compare_with_torch, cpu_session, export_model_bytes, step_signature
 
 RUNTIMES = ("torch", "onnxruntime")
@@ -97,5 +98,5 @@ def make_step(weights: LoadedWeights, size: int | None, device: torch.device, ru
     try:
         import onnxruntime  # noqa: F401
     except ImportError:
-        raise ValueError("--runtime onnxruntime needs the export extra: pip install 'colonlight[export]'") from None
+        raise ValueError(f"--runtime onnxruntime needs the export extra: {install_command('export')}") from None
     return OnnxStep(weights, size)
