@@ -10,7 +10,7 @@ def test_all_is_sorted_and_pinned() -> None:
     assert colonlight.__all__ == [
         "CheckpointError", "ClipOptions", "ClipResult", "ColonlightError", "DeviceError", "FrameResult", "GammaNet",
         "InputError", "LoadedWeights", "Method", "MethodStream", "__version__", "apply_gamma", "apply_lut",
-        "available_methods", "create_method", "enhance_clip", "gamma_lut", "iter_enhanced", "load_weights",
+        "available_methods", "create_method", "enhance_clip", "enhance_frames", "gamma_lut", "iter_enhanced", "load_weights",
         "resolve_device", "save_weights",
     ]
     for name in colonlight.__all__:
