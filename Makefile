@@ -1,8 +1,9 @@
 # Two commands set everything up on a fresh machine:
 #   make demo   installs colonlight into .venv and runs the main job on an embedded synthetic clip
 #   make test   installs colonlight with its test tools into .venv and runs the test suite
-# TORCH_SPEC picks the torch build; the default is the CPU build. Example for CUDA:
-#   make demo TORCH_SPEC="torch --index-url <your CUDA wheel index>"
+# TORCH_SPEC picks the torch build; the default is whatever the package index gives (PyPI: the CUDA build on
+# Linux x86-64, several GB). The CPU build:
+#   make demo TORCH_SPEC="torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu"
 
 PYTHON     ?= python3
 VENV       ?= .venv
