@@ -19,6 +19,7 @@ time, and the pixel cap (``ClipOptions.max_pixels``) is checked from the stream 
 from __future__ import annotations
 
 import json
+import os
 import queue
 import threading
 import time
@@ -268,8 +269,42 @@ def enhance_clip(
     """Enhance one clip (a video file or a folder of frames) into ``out_dir``; ``gammas.json`` is written last.
 
     Raises :class:`InputError` (one line naming the file and the cause) for unusable input; partial outputs of
-    this clip are then left without a ``gammas.json`` and a rerun redoes the clip.
+    this clip are then left without a ``gammas.json`` and a rerun redoes the clip. A clip that fails before
+    writing a frame leaves no empty folder behind.
     """
+    created: list[Path] = []  # folders this call creates (out_dir, its missing parents): removed if left empty
+    folder = Path(out_dir)
+    while not os.path.lexists(folder) and folder != folder.parent:
+        created.append(folder)
+        folder = folder.parent
+    try:
+        return _enhance_clip(source, out_dir, method, opts, clip_name=clip_name, on_frame=on_frame)
+    except BaseException:
+        if created:
+            _remove_if_empty([Path(out_dir) / FRAMES_DIR, *created])
+        raise
+
+
+def _remove_if_empty(folders: list[Path]) -> None:
+    """Remove each of ``folders`` (innermost first) that exists and is empty; stop at the first that is not."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except FileNotFoundError:
+            continue
+        except OSError:
+            return
+
+
+def _enhance_clip(
+    source: Path,
+    out_dir: Path,
+    method: Method,
+    opts: ClipOptions | None,
+    *,
+    clip_name: str | None,
+    on_frame: Callable[[int], None] | None,
+) -> ClipResult:
     t0 = time.perf_counter()
     opts = ClipOptions() if opts is None else opts
     source, out_dir = Path(source), Path(out_dir)
