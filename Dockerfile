@@ -36,7 +36,7 @@ COPY pyproject.toml ./
 RUN TORCH_VERSION="${TORCH_VERSION}" TORCH_INDEX="${TORCH_INDEX}" EXTRAS="${EXTRAS}" colonlight-docker-steps deps
 
 # Then the package, with its package data (the default weights in colonlight/weights/), and the non-root user.
-COPY README.md ./
+COPY README.md LICENSE ./
 COPY colonlight ./colonlight
 COPY cli ./cli
 COPY service ./service

@@ -1,8 +1,9 @@
 # Two commands set everything up on a fresh machine:
 #   make demo   installs colonlight into .venv and runs the main job on an embedded synthetic clip
 #   make test   installs colonlight with its test tools into .venv and runs the test suite
-# TORCH_SPEC picks the torch build; the default is the CPU build. Example for CUDA:
-#   make demo TORCH_SPEC="torch --index-url <your CUDA wheel index>"
+# TORCH_SPEC picks the torch build; the default is whatever the package index gives (PyPI: the CUDA build on
+# Linux x86-64, several GB). The CPU build:
+#   make demo TORCH_SPEC="torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu"
 
 PYTHON     ?= python3
 VENV       ?= .venv
@@ -15,9 +16,13 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
+# EXTRAS adds optional extras to `make install`/`make demo`, e.g. EXTRAS=eval or EXTRAS=eval,cluster,export,docs
+# (`make install-test` has all of them: the test extra includes their packages).
+EXTRAS     ?=
+
 install: $(BIN)/python
 	$(BIN)/pip install --quiet $(TORCH_SPEC)
-	$(BIN)/pip install --quiet -e .
+	$(BIN)/pip install --quiet -e ".$(if $(EXTRAS),[$(EXTRAS)])"
 
 install-test: $(BIN)/python browser
 	$(BIN)/pip install --quiet $(TORCH_SPEC)

@@ -13,12 +13,18 @@ from colonlight.limits import DEFAULT_FPS
 from .display import BatchDisplay, console, error_line
 
 DEMO_SEED = 20210628  # the clip is rendered from "heldout" settings, never used to train the default model
+DEMO_FPS = 30.0  # the rate the clip is rendered at, as a recorder's; enhance takes DEFAULT_FPS of it
+DEFAULT_FPS = ClipOptions().fps or 0.0  # the rate enhance extracts frames at (the paper's 18)
 
 
 def demo(
     output: Path = typer.Option(Path("colonlight-demo"), "--output", "-o", help="Where the demo clip and results go."),
-    frames: int = typer.Option(90, "--frames", min=10, help="Length of the synthetic clip (frames at 18 fps)."),
-    quiet: bool = typer.Option(False, "--quiet", "-q"),
+    frames: int = typer.Option(
+        90, "--frames", min=10,
+        help=f"Length of the synthetic clip in frames, rendered at {DEMO_FPS:g} fps (enhance keeps about "
+             f"{DEFAULT_FPS:g} of every {DEMO_FPS:g}: 90 frames, 3 s, give 54).",
+    ),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No live display."),
 ) -> None:
     """Render a synthetic colonoscopy clip, enhance it with the default model, and say where everything is."""
     from colonlight.synth import SynthConfig, write_clip
@@ -26,10 +32,10 @@ def demo(
 
     clip_dir = output / "input"
     cfg = SynthConfig.sample(np.random.default_rng(DEMO_SEED), split="heldout", width=480, height=384,
-                             n_frames=frames, fps=30.0, undisturbed_seeds=True)
+                             n_frames=frames, fps=DEMO_FPS, undisturbed_seeds=True)
     video_path = clip_dir / "clip.mp4"
     if not video_path.is_file():
-        console.print(f"rendering a synthetic clip ({frames} frames at 30 fps) into {clip_dir} ...")
+        console.print(f"rendering a synthetic clip ({frames} frames at {DEMO_FPS:g} fps) into {clip_dir} ...")
         write_clip(clip_dir, cfg, seed=DEMO_SEED, video=True, frames=False)
     enhanced = output / "enhanced"
     jobs = discover_clips([video_path], enhanced)
@@ -42,7 +48,7 @@ def demo(
     result = jobs[0].out_dir
     gammas = [f["gamma"] for f in json.loads((result / "gammas.json").read_text())["frames"]]
     console.print(
-        f"\n[bold]colonlight demo done[/]: {len(gammas)} frames extracted at 18 fps from a 30 fps clip, "
+        f"\n[bold]colonlight demo done[/]: {len(gammas)} frames extracted at {DEFAULT_FPS:g} fps from a {DEMO_FPS:g} fps clip, "
         f"gamma {min(gammas):.2f}..{max(gammas):.2f}\n"
         f"  input clip      {video_path}\n"
         f"  enhanced frames {result / 'frames'}/\n"

@@ -19,6 +19,7 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 from rich.table import Table
+from typer.core import TyperGroup
 
 from colonlight import ClipOutcome, PathProblem
 
@@ -29,6 +30,27 @@ out = Console(highlight=False)
 #: Unicode categories never printed as they are: controls (a newline), formats (a right-to-left override),
 #: line and paragraph separators, surrogates, private and unassigned code points.
 _UNSHOWN = frozenset({"Cc", "Cf", "Cs", "Co", "Cn", "Zl", "Zp"})
+
+
+def _untyped_flags(params: list[Any]) -> list[Any]:
+    for param in params:
+        if getattr(param, "is_flag", False) and param.metavar is None:
+            param.metavar = ""  # shown in the type column as it is: nothing
+    return params
+
+
+class FlagsWithoutType(TyperGroup):
+    """The command group, whose ``--help`` shows no value type beside a flag: typer prints ``<bool>`` beside
+    ``--quiet`` and ``--help``, which take no value (``--video/--no-video`` is the value)."""
+
+    def get_command(self, ctx: Any, cmd_name: str) -> Any:
+        command = super().get_command(ctx, cmd_name)
+        if command is not None:
+            _untyped_flags(command.get_params(ctx))  # with its --help
+        return command
+
+    def get_params(self, ctx: Any) -> Any:
+        return _untyped_flags(super().get_params(ctx))
 
 
 def printable(text: str) -> str:

@@ -15,10 +15,11 @@ from colonlight import __version__
 from colonlight.errors import ColonlightError
 
 from . import demo, enhance, evaluate, export, info, stream, synth, train
-from .display import error_line
+from .display import FlagsWithoutType, error_line
 
 app = typer.Typer(
     name="colonlight",
+    cls=FlagsWithoutType,
     help="Consistent lighting for colonoscopy video (Zhang et al., IPMI 2021): enhance, train, synthesise, serve.",
     no_args_is_help=True,
     add_completion=False,

@@ -3,11 +3,9 @@
 Quick start::
 
     import colonlight
-    method = colonlight.create_method("rnn")          # the shipped default model, CPU
-    stream = method.stream()                          # one per clip: carries the recurrent state
-    for frame in frames:                              # (H, W, 3) uint8 RGB, in order
-        for result in stream.push(frame):
-            result.frame, result.gamma                # enhanced frame, gamma applied (1.0 for the 2 seeds)
+    method = colonlight.create_method("rnn")          # the shipped default model, CPU; build once
+    for result in colonlight.enhance_frames(frames, method):   # one clip: (H, W, 3) uint8 RGB, in order
+        result.frame, result.gamma                    # one result per frame, in order (held-back ones flushed)
 
     colonlight.enhance_clip("clip.mp4", "out/clip", method)   # frames/, gammas.json (+ enhanced.mp4)
 """
@@ -63,6 +61,7 @@ _EXPORTS: dict[str, str] = {
     "enhance_clip": "pipeline",
     "iter_enhanced": "pipeline",
     "read_camera": "slam_layout",
+    "enhance_frames": "streaming",
 }
 
 if TYPE_CHECKING:
@@ -78,6 +77,7 @@ if TYPE_CHECKING:
     from .model import GammaNet
     from .pipeline import ClipOptions, ClipResult, enhance_clip, iter_enhanced
     from .slam_layout import read_camera
+    from .streaming import enhance_frames
 
 
 def __getattr__(name: str) -> Any:
@@ -121,6 +121,7 @@ __all__ = [
     "discover",
     "discover_clips",
     "enhance_clip",
+    "enhance_frames",
     "estimate_frames",
     "gamma_lut",
     "is_available",

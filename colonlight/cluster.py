@@ -48,6 +48,7 @@ from typing import Any
 from . import __version__
 from .jobs import ClipJob, ClipOutcome, MethodSpec, ProgressFn, method_for, run_clip
 from .errors import ColonlightError
+from .extras import install_command
 from .pipeline import ClipOptions
 
 #: The scheduler's event topic for progress events (one topic, so the scheduler's capped log does not grow per run).
@@ -222,7 +223,7 @@ class ClusterRunner:
             from distributed import Client
         except ImportError:
             raise ColonlightError(
-                "running on a cluster needs Dask distributed: pip install 'colonlight[cluster]'"
+                f"running on a cluster needs Dask distributed: {install_command('cluster')}"
             ) from None
         self.address = address
         self.timeout = cluster_timeout() if timeout is None else timeout

@@ -8,6 +8,8 @@ Hostile trees are expected: a path that cannot be used becomes either a clip tha
 symlink loop or a dangling link with a video suffix, a FIFO named ``x.mp4``) or a :class:`PathProblem` (a folder
 that cannot be listed). Folder links are followed, each folder is searched once (loops end there), and the
 output folder and any other colonlight output folder (it holds :data:`OUTPUT_MARKER`) are never searched.
+A synthetic clip folder (``colonlight synth``: it holds :data:`SYNTH_MARKER`, beside ``clip.mp4``, ``frames/``,
+``clean/`` and ``depth/``) is one clip, named by its folder: its recorded video, or its frames if it has none.
 Names that are not valid UTF-8 are kept as Python keeps them (``os.fsdecode``: surrogate escapes), so the
 output folder gets the same bytes.
 """
@@ -34,6 +36,31 @@ _SIDE_SUFFIXES = frozenset(".json .txt .csv .md .yaml .yml .xml .log .ini".split
 #: The lock file every ``colonlight enhance`` output folder holds (see :mod:`colonlight.outdir`): a folder
 #: holding it is an output, never an input.
 OUTPUT_MARKER = ".colonlight.lock"
+#: The file every synthetic clip folder holds (written last, see :mod:`colonlight.synth.writer`): such a folder
+#: is one clip, never searched for clips of its own (its ``clean/`` and ``depth/`` are ground truth, not clips).
+SYNTH_MARKER = "synth.json"
+#: What a synthetic clip folder holds as its clip, in order of preference: the recorded video, its frames.
+SYNTH_CLIP_SOURCES = ("clip.mp4", "frames")
+
+
+def is_synthetic_folder(path: Path) -> bool:
+    """A ``colonlight synth`` clip folder (by its :data:`SYNTH_MARKER`)."""
+    return os.path.isdir(path) and os.path.isfile(os.path.join(path, SYNTH_MARKER))
+
+
+def synthetic_folder_of(source: Path) -> Path | None:
+    """The synthetic clip folder whose clip ``source`` is (``s0/clip.mp4`` -> ``s0``), else None."""
+    source = Path(source)
+    return source.parent if source.name in SYNTH_CLIP_SOURCES and is_synthetic_folder(source.parent) else None
+
+
+def synthetic_clip(folder: Path) -> tuple[Path, str | None]:
+    """The clip of a synthetic clip folder, and a one-line problem if it holds none."""
+    for name in SYNTH_CLIP_SOURCES:
+        if os.path.exists(os.path.join(folder, name)):
+            return Path(folder) / name, None
+    return Path(folder) / SYNTH_CLIP_SOURCES[0], (
+        f"{folder}: a synthetic clip folder with neither {' nor '.join(SYNTH_CLIP_SOURCES)}")
 
 
 @dataclass(frozen=True)
@@ -145,7 +172,10 @@ class _Walk:
                     self.out.problems.append(PathProblem(
                         str(sub), f"{sub}: skipped: a colonlight output folder (it holds {OUTPUT_MARKER})", failed=False))
                     continue
-                if is_image_folder(sub):
+                if is_synthetic_folder(sub):
+                    source, problem = synthetic_clip(sub)  # one clip, named by its folder: do not descend
+                    yield source, sub.relative_to(root), problem
+                elif is_image_folder(sub):
                     yield sub, sub.relative_to(root), None  # a frame folder is one clip: do not descend
                 else:
                     descend.append(sub)
@@ -190,7 +220,10 @@ def discover(
     found: list[tuple[Path, Path, str | None]] = []
     for inp in inputs:
         inp = Path(inp)
-        if os.path.isdir(inp) and not is_image_folder(inp):
+        if is_synthetic_folder(inp):
+            source, problem = synthetic_clip(inp)
+            found.append((source, _direct(inp)[1], problem))
+        elif os.path.isdir(inp) and not is_image_folder(inp):
             found.extend(walker.walk(inp))
         else:  # a file, a frame folder, or a path that cannot be used (it fails when the clip runs)
             found.append(_direct(inp))
@@ -207,8 +240,8 @@ def discover(
     seen: set[tuple[str, str]] = set()
     for src, rel, problem in found:
         name = rel.as_posix()
-        if counts[name] > 1 and src.suffix:
-            name = f"{name}-{src.suffix.lstrip('.').lower()}"
+        if counts[name] > 1 and (src.suffix or synthetic_folder_of(src)):
+            name = f"{name}-{'synth' if synthetic_folder_of(src) else src.suffix.lstrip('.').lower()}"
         key = (os.path.realpath(src), name)  # realpath, unlike Path.resolve, never raises on a link loop
         if key in seen:
             continue
@@ -222,4 +255,7 @@ def discover_clips(inputs: Sequence[Path], out_root: Path, pattern: str | None =
     return discover(inputs, out_root, pattern).jobs
 
 
-__all__ = ["OUTPUT_MARKER", "VIDEO_SUFFIXES", "ClipJob", "Discovery", "PathProblem", "discover", "discover_clips"]
+__all__ = [
+    "OUTPUT_MARKER", "SYNTH_CLIP_SOURCES", "SYNTH_MARKER", "VIDEO_SUFFIXES", "ClipJob", "Discovery", "PathProblem",
+    "discover", "discover_clips", "is_synthetic_folder", "synthetic_clip", "synthetic_folder_of",
+]

@@ -98,7 +98,9 @@ def estimate_frames(source: Path, fps: float | None) -> int | None:
         info = probe_video(source)
         if info.duration_s:
             rate = fps or info.avg_fps
-            return int(info.duration_s * rate) + 1 if rate else None
+            # the fps filter emits a frame per output tick up to the clip's end, rounded to the nearest:
+            # round(duration * rate) (3.0 s at 18 fps: 54, not the 55 that int() + 1 gave)
+            return max(1, int(info.duration_s * rate + 0.5)) if rate else None
     except (ColonlightError, OSError):
         return None
     return None

@@ -42,6 +42,7 @@ from .methods.base import FrameResult, Method
 from .provenance import library_versions
 from .slam_layout import camera_setting, clip_camera, write_slam_layout
 from .sources import clip_frames
+from .streaming import enhance_frames
 from .video import DecodedFrame, DecodeReport, VideoWriter
 
 GAMMAS_FILE = "gammas.json"
@@ -414,11 +415,9 @@ def _source_rate(head: list[DecodedFrame]) -> float:
 def iter_enhanced(
     frames: Iterator[np.ndarray], method: Method
 ) -> Iterator[FrameResult]:
-    """Library convenience: enhance an iterable of RGB uint8 frames in order, yielding results as they are ready."""
-    stream = method.stream()
-    for frame in frames:
-        yield from stream.push(frame)
-    yield from stream.flush()
+    """Library convenience: enhance an iterable of RGB uint8 frames in order, yielding results as they are ready
+    (:func:`colonlight.streaming.enhance_frames`, kept under this name)."""
+    return enhance_frames(frames, method)
 
 
 __all__ = [

@@ -17,7 +17,11 @@ AUTHORS_CKPT = REFERENCE / "gamma_thru10_first2prev2_ssimALL_Epoch6.pth"
 def reference_dir() -> Path:
     """The authors' checkpoint + frames + expected values; skip where ../shared is absent."""
     if not (REFERENCE / "expected.json").is_file() or not AUTHORS_CKPT.is_file():
-        pytest.skip(f"reference fixture not found at {REFERENCE} (../shared is absent on this machine)")
+        pytest.skip(
+            f"needs the paper authors' published checkpoint and reference frames, not in this repository "
+            f"(unlicensed: https://github.com/zhangybzbo/ColonLight); expected at {REFERENCE} "
+            "(../shared beside the checkout, or COLONLIGHT_SHARED)"
+        )
     return REFERENCE
 
 

@@ -8,12 +8,13 @@ import colonlight
 def test_all_is_sorted_and_pinned() -> None:
     assert colonlight.__all__ == sorted(colonlight.__all__)
     assert colonlight.__all__ == [
-        "CheckpointError", "ClipJob", "ClipOptions", "ClipOutcome", "ClipResult", "ColonlightError", "DeviceError",
-        "FrameResult", "GammaNet", "InputError", "LoadedWeights", "ManifestError", "Method", "MethodSpec",
-        "MethodStream", "OptionError", "OutputError", "PathProblem", "__version__", "apply_gamma", "apply_lut", "available_methods",
-        "create_method", "default_workers", "discover", "discover_clips", "enhance_clip", "estimate_frames",
-        "gamma_lut", "is_available", "iter_enhanced", "load_weights", "method_for", "network_threads", "output_lock",
-        "read_camera", "resolve_device", "reuse_frame_memory", "run_batch", "run_clip", "save_weights", "warm_method",
+        "CheckpointError", "ClipJob", "ClipOptions", "ClipOutcome", "ClipResult", "ColonlightError",
+        "DeviceError", "FrameResult", "GammaNet", "InputError", "LoadedWeights", "ManifestError", "Method",
+        "MethodSpec", "MethodStream", "OptionError", "OutputError", "PathProblem", "__version__",
+        "apply_gamma", "apply_lut", "available_methods", "create_method", "default_workers", "discover",
+        "discover_clips", "enhance_clip", "enhance_frames", "estimate_frames", "gamma_lut", "is_available",
+        "iter_enhanced", "load_weights", "method_for", "network_threads", "output_lock", "read_camera",
+        "resolve_device", "reuse_frame_memory", "run_batch", "run_clip", "save_weights", "warm_method",
     ]
     for name in colonlight.__all__:
         assert hasattr(colonlight, name), name

@@ -43,8 +43,7 @@ def test_train_command_on_synthetic_clips(tmp_path: Path) -> None:
     assert card["training"]["anchor"] == 0.05 and "brightness anchor" in card["training"]["objective"]
     assert len(card["training"]["history"]) == 1
     out = runner.invoke(app, ["enhance", str(tmp_path / "run" / "data" / "val"), "-o", str(tmp_path / "o"),
-                              "--weights", str(tmp_path / "run" / "colonlight-rnn.safetensors"), "-q",
-                              "--pattern", "*/frames"])
+                              "--weights", str(tmp_path / "run" / "colonlight-rnn.safetensors"), "-q"])
     assert out.exit_code == 0, out.output
 
 

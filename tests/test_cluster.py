@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip(
-    "distributed", reason="Dask distributed is not installed (pip install 'colonlight[cluster]')"
+    "distributed", reason="Dask distributed is not installed (the cluster extra: pip install -e '.[cluster]')"
 )
 
 from distributed import Client

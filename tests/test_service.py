@@ -334,3 +334,22 @@ def test_web_page_is_served(client: httpx.Client) -> None:
     assert client.get("/static/app.js").status_code == 200
     info = client.get("/v1/info").json()
     assert "rnn" in info["methods"] and info["auth_required"] is False and info["limits"]["max_upload_mb"] == MAX_UPLOAD_MB
+
+
+def test_frames_total_at_submission_is_the_final_count(client: httpx.Client, tmp_path: Path) -> None:
+    """A 3 s clip at 30 fps gives 54 frames at 18 fps: the estimate a job starts with (from the container's
+    duration) is the count it ends with, not 55 turning into 54."""
+    clip = make_clip(tmp_path / "three seconds.mp4", n_frames=90, fps=30)
+    r = submit(client, clip)
+    assert r.status_code == 202, r.text
+    assert r.json()["frames_total"] == 54
+    done = wait_done(client, r.headers["location"])
+    assert done["status"] == "succeeded", done
+    assert done["frames_done"] == done["frames_total"] == 54
+
+
+def test_favicon_is_served(client: httpx.Client) -> None:
+    r = client.get("/favicon.ico")
+    assert r.status_code == 200 and r.headers["content-type"] == "image/x-icon"
+    assert r.content[:4] == b"\x00\x00\x01\x00" and len(r.content) > 100  # an ICO header, not an error page
+    assert '<link rel="icon" href="/favicon.ico">' in client.get("/").text

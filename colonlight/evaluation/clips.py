@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import multiprocessing
-import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -24,7 +23,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..discovery import discover_clips
+from ..discovery import SYNTH_MARKER, discover_clips, is_synthetic_folder, synthetic_folder_of
 from ..errors import InputError
 from ..frames import list_image_frames, read_image
 from ..limits import DEFAULT_FPS
@@ -33,7 +32,6 @@ from ..synth import SynthConfig, decode_depth, write_clip
 from ..synth.config import Split
 from ..synth.writer import read_tum
 
-SYNTH_MARKER = "synth.json"
 DEFAULT_MAX_SIZE = 256
 #: Seeds of the benchmark's clips start here: training used 1000-1099 and the quality gate 700000-700023.
 BENCHMARK_SEED0 = 800_000
@@ -267,34 +265,20 @@ def load_user_clip(
 # ------------------------------------------------------------------------------------------------ discovery
 
 
-def is_synthetic_folder(path: Path) -> bool:
-    return Path(path).is_dir() and (Path(path) / SYNTH_MARKER).is_file()
-
-
 def find_clips(inputs: Sequence[Path]) -> list[ClipRef]:
-    """Clips under ``inputs``: synthetic clip folders (by ``synth.json``) and every other clip that
-    :func:`colonlight.batch.discover_clips` finds (by content), named as ``colonlight enhance`` names them.
-
-    Nothing inside a synthetic clip folder is taken as a clip of its own (its ``frames/``, ``clean/`` and
-    ``depth/`` are parts of it). A path that does not exist is kept, to be reported when loaded.
+    """Clips under ``inputs``, as :func:`colonlight.discovery.discover_clips` finds and names them for
+    ``colonlight enhance``: synthetic clip folders (by ``synth.json``: one clip each, with its ground truth; listed
+    first), then every other clip. A path that does not exist is kept, to be reported when loaded.
     """
     refs: list[ClipRef] = []
     for inp in map(Path, inputs):
         if is_synthetic_folder(inp):
             refs.append(ClipRef(inp.name, inp, "synthetic"))
             continue
-        synthetic: list[Path] = []
-        if inp.is_dir():
-            for dirpath, dirnames, filenames in os.walk(inp):
-                dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
-                if SYNTH_MARKER in filenames:
-                    synthetic.append(Path(dirpath))
-                    dirnames[:] = []
-        for s in synthetic:
-            refs.append(ClipRef(s.relative_to(inp).as_posix() if s != inp else s.name, s, "synthetic"))
-        for job in discover_clips([inp], Path(".")):
-            if not any(job.source == s or s in job.source.parents for s in synthetic):
-                refs.append(ClipRef(job.name, job.source, "video"))
+        jobs = discover_clips([inp], Path("."))
+        folders = [synthetic_folder_of(job.source) for job in jobs]
+        refs += [ClipRef(job.name, folder, "synthetic") for job, folder in zip(jobs, folders) if folder is not None]
+        refs += [ClipRef(job.name, job.source, "video") for job, folder in zip(jobs, folders) if folder is None]
     return refs
 
 

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from ..errors import ColonlightError
+from ..extras import install_command
 from ..methods import Method, available_methods, create_method
 from ..metrics import clip_lighting, content_masks, mean_luma
 from .breakdown import clip_failures, summarize_failures
@@ -109,7 +110,7 @@ def require_extras(colmap: bool = True) -> None:
     missing = missing_extras(colmap)
     if missing:
         raise ColonlightError(
-            f"colonlight evaluate needs {', '.join(missing)}: pip install 'colonlight[eval]'"
+            f"colonlight evaluate needs {', '.join(missing)}: {install_command('eval')}"
             + (" (or run with --no-colmap)" if {"pycolmap", "evo"} & set(missing) else "")
         )
 

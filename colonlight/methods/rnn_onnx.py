@@ -21,6 +21,7 @@ from .. import __version__
 from ..atomic import write_bytes_atomic
 from ..checkpoint import LoadedWeights
 from ..errors import OptionError
+from ..extras import install_command
 from ..onnx_step import ExportError, StepSignature, compare_with_torch, cpu_session, export_model_bytes, step_signature
 
 RUNTIMES = ("torch", "onnxruntime")
@@ -98,5 +99,5 @@ def make_step(weights: LoadedWeights, size: int | None, device: torch.device, ru
     try:
         import onnxruntime  # noqa: F401
     except ImportError:
-        raise OptionError("--runtime onnxruntime needs the export extra: pip install 'colonlight[export]'") from None
+        raise OptionError(f"--runtime onnxruntime needs the export extra: {install_command('export')}") from None
     return OnnxStep(weights, size)

@@ -1,0 +1,35 @@
+"""Enhance a sequence of frames in one call that cannot lose any: ``for out in enhance_frames(frames, method)``.
+
+A :class:`~colonlight.methods.MethodStream` may hold frames back (``deflicker`` looks ahead and returns its last
+frames only from ``flush()``); a caller's loop over ``push`` that forgets ``flush`` drops them. This iterator
+pushes every frame and flushes at the end, so it yields exactly one result per frame given, in order, whatever
+the method. Frames are pulled one at a time: memory stays constant for a clip of any length.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from typing import Any
+
+import numpy as np
+
+from .methods import FrameResult, Method, create_method
+
+
+def enhance_frames(frames: Iterable[np.ndarray], method: Method | str = "rnn", **options: Any) -> Iterator[FrameResult]:
+    """Yield one :class:`FrameResult` per frame of ``frames`` (``(H, W, 3)`` uint8 RGB, in clip order), in order.
+
+    ``method``: a :class:`Method` (built once, reused across clips), or a method's name, built here with
+    ``options`` (``create_method(name, **options)``). Each call is one clip: a fresh stream, state from zero.
+    """
+    if isinstance(method, str):
+        method = create_method(method, **options)
+    elif options:
+        raise TypeError("options go with a method's name; a built Method already has its own")
+    stream = method.stream()
+    for frame in frames:
+        yield from stream.push(frame)
+    yield from stream.flush()
+
+
+__all__ = ["enhance_frames"]
