@@ -283,13 +283,26 @@ def test_bad_frames_and_messages_are_skipped(server: ServiceServer, weights: Pat
 
 
 def test_a_message_over_the_size_limit_closes_with_1009(server: ServiceServer) -> None:
-    with open_stream(server) as ws:
-        ws.send(json.dumps({"type": "start"}))
-        assert recv_json(ws)["type"] == "ready"
-        ws.send(b"\xff\xd8" + bytes(2 * 2**20))  # 2 MiB, over COLONLIGHT_STREAM_MAX_FRAME_MB=1
-        code, _, _ = closed_with(ws)
-        assert code == 1009
-    assert httpx.get(server.url + "/healthz", timeout=10).status_code == 200
+    # The server closes as soon as the frame header announces too many bytes; a client still writing the rest can
+    # then see the connection reset, which drops the close frame on its side. That race is the client's, so a few
+    # attempts are made: one must show the 1009, and the server must stay healthy after every one.
+    codes = []
+    for _ in range(3):
+        with open_stream(server) as ws:
+            ws.send(json.dumps({"type": "start"}))
+            assert recv_json(ws)["type"] == "ready"
+            try:
+                ws.send(b"\xff\xd8" + bytes(2 * 2**20))  # 2 MiB, over COLONLIGHT_STREAM_MAX_FRAME_MB=1
+            except (ConnectionClosed, OSError):
+                pass
+            try:
+                codes.append(closed_with(ws)[0])
+            except (ConnectionClosed, OSError, AssertionError):  # reset: no close frame reached this side
+                codes.append(None)
+        assert httpx.get(server.url + "/healthz", timeout=10).status_code == 200
+        if 1009 in codes:
+            break
+    assert 1009 in codes, codes
 
 
 def test_bad_start_options_close_with_1008(server: ServiceServer) -> None:
