@@ -26,7 +26,9 @@ def parse(argv: list[str]) -> list[tuple[str, list[str]]]:
     """``["quality_gate", "--json", "f", "enhance"]`` -> ``[("quality_gate", ["--json", "f"]), ("enhance", [])]``."""
     runs: list[tuple[str, list[str]]] = []
     for arg in argv:
-        if runs and (arg.startswith("-") or (runs[-1][1] and runs[-1][1][-1].startswith("-") and arg not in BENCHMARKS)):
+        if runs and (
+            arg.startswith("-") or (runs[-1][1] and runs[-1][1][-1].startswith("-") and arg not in BENCHMARKS)
+        ):
             runs[-1][1].append(arg)
         elif arg in BENCHMARKS:
             runs.append((arg, []))

@@ -51,14 +51,44 @@ def make_clip(path: Path, seconds: float, width: int, height: int, fps: int = SR
     from colonlight.synth import SynthConfig, generate_clip
 
     n = int(round(seconds * fps))
-    cfg = SynthConfig.sample(np.random.default_rng(7), split="heldout", width=width // 2 // 2 * 2,
-                             height=height // 2 // 2 * 2, n_frames=min(n, 300), fps=float(fps))
+    cfg = SynthConfig.sample(
+        np.random.default_rng(7),
+        split="heldout",
+        width=width // 2 // 2 * 2,
+        height=height // 2 // 2 * 2,
+        n_frames=min(n, 300),
+        fps=float(fps),
+    )
     frames = [f.image for f in generate_clip(cfg, seed=7)]
     proc = subprocess.Popen(
-        [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
-         "-s", f"{cfg.width}x{cfg.height}", "-framerate", str(fps), "-i", "-",
-         "-vf", f"scale={width}:{height}:flags=bicubic", "-c:v", "libx264", "-preset", "veryfast", "-crf", "18",
-         "-pix_fmt", "yuv420p", str(path)],
+        [
+            ffmpeg_exe(),
+            "-hide_banner",
+            "-loglevel",
+            "error",
+            "-y",
+            "-f",
+            "rawvideo",
+            "-pix_fmt",
+            "rgb24",
+            "-s",
+            f"{cfg.width}x{cfg.height}",
+            "-framerate",
+            str(fps),
+            "-i",
+            "-",
+            "-vf",
+            f"scale={width}:{height}:flags=bicubic",
+            "-c:v",
+            "libx264",
+            "-preset",
+            "veryfast",
+            "-crf",
+            "18",
+            "-pix_fmt",
+            "yuv420p",
+            str(path),
+        ],
         stdin=subprocess.PIPE,
     )
     assert proc.stdin is not None
@@ -91,8 +121,19 @@ def timed(cmd: list[str]) -> tuple[float, int, float]:
 def ffmpeg_cmd(clip: Path, out: Path, fmt: str) -> list[str]:
     curve = f"255*pow(val/255\\,{GAMMA})"
     quality = ["-pix_fmt", "yuvj420p", "-qmin", "1", "-q:v", "1"] if fmt == "jpg" else []  # = ours: see above
-    return [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y", "-i", str(clip),
-            "-vf", f"fps=18,lutrgb=r='{curve}':g='{curve}':b='{curve}'", *quality, str(out / f"%06d.{fmt}")]
+    return [
+        ffmpeg_exe(),
+        "-hide_banner",
+        "-loglevel",
+        "error",
+        "-y",
+        "-i",
+        str(clip),
+        "-vf",
+        f"fps=18,lutrgb=r='{curve}':g='{curve}':b='{curve}'",
+        *quality,
+        str(out / f"%06d.{fmt}"),
+    ]
 
 
 def compare_formats(work: Path, clip: Path, formats: tuple[str, ...] = ("png", "jpg")) -> list[list[object]]:
@@ -116,9 +157,21 @@ def compare_formats(work: Path, clip: Path, formats: tuple[str, ...] = ("png", "
         mo, mt = statistics.median(t[0] for t in ours), statistics.median(t[0] for t in theirs)
         co, ct = statistics.median(t[2] for t in ours), statistics.median(t[2] for t in theirs)
         target = 1.0 if fmt == "png" else 1.3
-        rows.append([fmt, n_ours, n_theirs, f"{mt:.2f}", f"{mo:.2f}", f"{ct:.1f}", f"{co:.1f}", f"{mo / mt:.2f}x",
-                     f"<= {target}x", "yes" if mo / mt <= target else "NO",
-                     f"{min(load):.1f}-{max(load):.1f}"])
+        rows.append(
+            [
+                fmt,
+                n_ours,
+                n_theirs,
+                f"{mt:.2f}",
+                f"{mo:.2f}",
+                f"{ct:.1f}",
+                f"{co:.1f}",
+                f"{mo / mt:.2f}x",
+                f"<= {target}x",
+                "yes" if mo / mt <= target else "NO",
+                f"{min(load):.1f}-{max(load):.1f}",
+            ]
+        )
     return rows
 
 
@@ -138,8 +191,10 @@ def model_cost() -> list[list[object]]:
     weights = load_weights(None)
     frame = np.random.default_rng(0).integers(0, 256, (HEIGHT, WIDTH, 3), dtype=np.uint8)
     rows = []
-    for label, size, reps in ((f"default ({DEFAULT_MODEL_SIZE}x{DEFAULT_MODEL_SIZE})", DEFAULT_MODEL_SIZE, 50),
-                              (f"full resolution ({WIDTH}x{HEIGHT}, the release)", None, 3)):
+    for label, size, reps in (
+        (f"default ({DEFAULT_MODEL_SIZE}x{DEFAULT_MODEL_SIZE})", DEFAULT_MODEL_SIZE, 50),
+        (f"full resolution ({WIDTH}x{HEIGHT}, the release)", None, 3),
+    ):
         threads = network_threads(MethodSpec.of("rnn", model_size=size if size else "full"), 1)
         torch.set_num_threads(threads)
         stream = RecurrentGammaMethod(weights, model_size=size if size else "full", device="cpu").stream()
@@ -177,17 +232,40 @@ def main() -> str:
         cost = model_cost()
         mem = memory(work)
     load = " / ".join(f"{x:.1f}" for x in os.getloadavg())
-    return "\n".join([
-        f"## colonlight enhance vs FFmpeg (20 s 1350x1080 H.264 at 30 fps -> 18 fps frames; median of {REPEATS})", "",
-        markdown_table(["format", "frames (ours)", "frames (ffmpeg)", "ffmpeg s", "colonlight s", "ffmpeg CPU s",
-                        "colonlight CPU s", "ratio (wall)", "target", "met", "load avg (1 min)"], speed),
-        "", "## Model cost per frame (network step incl. resize, 1350x1080 input)", "",
-        markdown_table(["network input", "torch threads (as the CLI)", "ms/frame (median)", "of which resize ms"],
-                       cost),
-        "", "## Peak memory of `colonlight enhance` (320x256 clips at 30 fps, PNG frames)", "",
-        markdown_table(["clip", "frames", "seconds", "max RSS MiB"], mem),
-        "", f"{os.cpu_count()} cores; load average at the end (1 / 5 / 15 min): {load}.",
-    ])
+    return "\n".join(
+        [
+            f"## colonlight enhance vs FFmpeg (20 s 1350x1080 H.264 at 30 fps -> 18 fps frames; median of {REPEATS})",
+            "",
+            markdown_table(
+                [
+                    "format",
+                    "frames (ours)",
+                    "frames (ffmpeg)",
+                    "ffmpeg s",
+                    "colonlight s",
+                    "ffmpeg CPU s",
+                    "colonlight CPU s",
+                    "ratio (wall)",
+                    "target",
+                    "met",
+                    "load avg (1 min)",
+                ],
+                speed,
+            ),
+            "",
+            "## Model cost per frame (network step incl. resize, 1350x1080 input)",
+            "",
+            markdown_table(
+                ["network input", "torch threads (as the CLI)", "ms/frame (median)", "of which resize ms"], cost
+            ),
+            "",
+            "## Peak memory of `colonlight enhance` (320x256 clips at 30 fps, PNG frames)",
+            "",
+            markdown_table(["clip", "frames", "seconds", "max RSS MiB"], mem),
+            "",
+            f"{os.cpu_count()} cores; load average at the end (1 / 5 / 15 min): {load}.",
+        ]
+    )
 
 
 if __name__ == "__main__":

@@ -29,7 +29,9 @@ def _clip_gammas(weights: object, frames: list[np.ndarray], size: int) -> np.nda
 def _fixture_frames() -> list[np.ndarray]:
     import cv2
 
-    return [cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) for p in sorted((REFERENCE / "frames_native").glob("*.png"))]
+    return [
+        cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) for p in sorted((REFERENCE / "frames_native").glob("*.png"))
+    ]
 
 
 def _synthetic_clips(n: int, frames: int) -> list[list[np.ndarray]]:
@@ -46,7 +48,10 @@ def main() -> str:
     if not AUTHORS_CKPT.is_file():
         return f"input_size: skipped (authors' checkpoint not found at {AUTHORS_CKPT})"
     weights = load_weights(AUTHORS_CKPT)
-    sets = {"fixture (24 frames, 384x288)": [_fixture_frames()], "synthetic (8 clips x 40, 384x288)": _synthetic_clips(8, 40)}
+    sets = {
+        "fixture (24 frames, 384x288)": [_fixture_frames()],
+        "synthetic (8 clips x 40, 384x288)": _synthetic_clips(8, 40),
+    }
     rows = []
     for label, clips in sets.items():
         ref = [_clip_gammas(weights, c, 256) for c in clips]
@@ -70,9 +75,13 @@ def main() -> str:
             torch.set_num_threads(threads)
             row.append(f"{1000 * median_time(step, repeats=40, warmup=5):.2f}")
         cost.append(row)
-    out = ["## Network input size (authors' checkpoint)", "",
-           markdown_table(["clips", "size", "mean abs(gamma - gamma256)", "median", "max"], rows), "",
-           markdown_table(["size", "ms/frame, 1 thread (median of 40)", "2 threads"], cost)]
+    out = [
+        "## Network input size (authors' checkpoint)",
+        "",
+        markdown_table(["clips", "size", "mean abs(gamma - gamma256)", "median", "max"], rows),
+        "",
+        markdown_table(["size", "ms/frame, 1 thread (median of 40)", "2 threads"], cost),
+    ]
     return "\n".join(out)
 
 

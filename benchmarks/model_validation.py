@@ -36,8 +36,9 @@ def validation_clips(n: int) -> list[tuple[dict[str, object], SynthConfig, list]
     out = []
     for i in range(n):
         seed, over = SEED0 + i, clip_overrides(i)
-        cfg = SynthConfig.sample(np.random.default_rng([seed, 1]), split="heldout", width=WIDTH, height=HEIGHT,
-                                 n_frames=FRAMES, **over)
+        cfg = SynthConfig.sample(
+            np.random.default_rng([seed, 1]), split="heldout", width=WIDTH, height=HEIGHT, n_frames=FRAMES, **over
+        )
         out.append((over, cfg, list(generate_clip(cfg, seed))))
     return out
 
@@ -46,7 +47,9 @@ def _track(frames: list[np.ndarray], clip: list, cfg: SynthConfig, brightness: s
     i = Intrinsics.from_fov(cfg.width, cfg.height, cfg.fov_deg)
     K = np.array([[i.fx, 0, i.cx], [0, i.fy, i.cy], [0, 0, 1.0]])
     with np.errstate(all="ignore"):
-        r = track_clip(frames, [f.depth for f in clip], K, [f.pose for f in clip], TrackerSettings(brightness=brightness))
+        r = track_clip(
+            frames, [f.depth for f in clip], K, [f.pose for f in clip], TrackerSettings(brightness=brightness)
+        )
     return bool(r.success), float(np.mean(r.frame_ok[1:]))
 
 
@@ -86,17 +89,31 @@ def score(label: str, weights: str | None, clips: list) -> list[str]:  # type: i
 def main(argv: list[str] | None = None) -> str:
     parser = argparse.ArgumentParser(prog="python -m benchmarks model_validation")
     parser.add_argument("--clips", type=int, default=8)
-    parser.add_argument("--weights", action="append", default=[], help="checkpoints to score (default: the shipped one)")
+    parser.add_argument(
+        "--weights", action="append", default=[], help="checkpoints to score (default: the shipped one)"
+    )
     args = parser.parse_args(argv or [])
     clips = validation_clips(args.clips)
     rows = [score("none", None, clips), score("clean", None, clips)]
     for w in args.weights or [None]:
         rows.append(score(w or "rnn (shipped)", w or None, clips))
-    return "\n".join([
-        f"## Validation: {args.clips} held-out clips x {FRAMES} frames ({WIDTH}x{HEIGHT}), seeds {SEED0}..",
-        "", markdown_table(["weights", "PSNR to clean (dB)", "flicker vs clean", "fixed: success, tracked",
-                            "affine: success, tracked", "steady: max darkening"], rows),
-    ])
+    return "\n".join(
+        [
+            f"## Validation: {args.clips} held-out clips x {FRAMES} frames ({WIDTH}x{HEIGHT}), seeds {SEED0}..",
+            "",
+            markdown_table(
+                [
+                    "weights",
+                    "PSNR to clean (dB)",
+                    "flicker vs clean",
+                    "fixed: success, tracked",
+                    "affine: success, tracked",
+                    "steady: max darkening",
+                ],
+                rows,
+            ),
+        ]
+    )
 
 
 if __name__ == "__main__":

@@ -34,8 +34,17 @@ from .common import markdown_table
 SEEDS = range(1000, 1006)
 N_FRAMES, RENDER = 40, 256
 SIZES = (48, 64, 128, 256)
-SLOW = {"speed_mm_s": 2.0, "speed_var": 0.0, "jitter_deg": 0.1, "look_var_deg": 2.0, "lateral": 0.0,
-        "roll_var_deg": 0.0, "roll_rate_deg_s": 0.0, "read_noise": 0.001, "shot_noise": 0.0005}
+SLOW = {
+    "speed_mm_s": 2.0,
+    "speed_var": 0.0,
+    "jitter_deg": 0.1,
+    "look_var_deg": 2.0,
+    "lateral": 0.0,
+    "roll_var_deg": 0.0,
+    "roll_rate_deg_s": 0.0,
+    "read_noise": 0.001,
+    "shot_noise": 0.0005,
+}
 
 
 def render(overrides: dict[str, object]) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -44,8 +53,9 @@ def render(overrides: dict[str, object]) -> list[tuple[np.ndarray, np.ndarray]]:
 
     out = []
     for seed in SEEDS:
-        cfg = SynthConfig.sample(np.random.default_rng(seed), split="train", width=RENDER, height=RENDER,
-                                 n_frames=N_FRAMES, **overrides)
+        cfg = SynthConfig.sample(
+            np.random.default_rng(seed), split="train", width=RENDER, height=RENDER, n_frames=N_FRAMES, **overrides
+        )
         frames = list(generate_clip(cfg, seed=seed))
         out.append((np.stack([f.image for f in frames]), np.stack([f.clean for f in frames])))
     return out
@@ -96,14 +106,21 @@ def main(argv: list[str] | None = None) -> str:
         for size in SIZES:
             l = losses(sequences([c[0] for c in clips], size), sequences([c[1] for c in clips], size))
             best = min(l, key=l.__getitem__)
-            rows.append([family, str(size)] + [f"{l[k]:.4f}" for k in ("input", "clean", "flatten", "washout")] + [best])
-    return "\n".join([
-        f"## The paper's loss for candidate outputs ({len(SEEDS)} training-split clips x {N_FRAMES} frames)", "",
-        markdown_table(["clips", "size", "input (a=1)", "clean frames", "flatten (oracle)", "washout (a=8)",
-                        "lowest"], rows),
-        "", "Lower is what training moves towards. Where `washout` is lowest, training collapses to white frames;",
-        "where `flatten` is no lower than `input`, the objective gives no reason to remove flicker.",
-    ])
+            rows.append(
+                [family, str(size)] + [f"{l[k]:.4f}" for k in ("input", "clean", "flatten", "washout")] + [best]
+            )
+    return "\n".join(
+        [
+            f"## The paper's loss for candidate outputs ({len(SEEDS)} training-split clips x {N_FRAMES} frames)",
+            "",
+            markdown_table(
+                ["clips", "size", "input (a=1)", "clean frames", "flatten (oracle)", "washout (a=8)", "lowest"], rows
+            ),
+            "",
+            "Lower is what training moves towards. Where `washout` is lowest, training collapses to white frames;",
+            "where `flatten` is no lower than `input`, the objective gives no reason to remove flicker.",
+        ]
+    )
 
 
 if __name__ == "__main__":

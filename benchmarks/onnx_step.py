@@ -91,8 +91,11 @@ def measure(rounds: int, steps: int, size: int = DEFAULT_MODEL_SIZE) -> list[lis
         for kind in ("wall", "cpu"):
             ms = got[kind]
             ratios = [o / t for o, t in zip(ms["onnxruntime"], ms["torch"])]
-            row += [f"{statistics.median(ms['torch']):.2f}", f"{statistics.median(ms['onnxruntime']):.2f}",
-                    f"**{statistics.median(ratios):.2f}x** ({min(ratios):.2f}-{max(ratios):.2f})"]
+            row += [
+                f"{statistics.median(ms['torch']):.2f}",
+                f"{statistics.median(ms['onnxruntime']):.2f}",
+                f"**{statistics.median(ratios):.2f}x** ({min(ratios):.2f}-{max(ratios):.2f})",
+            ]
         rows.append(row)
     return rows
 
@@ -108,8 +111,16 @@ def main(argv: list[str] | None = None) -> str:
     import onnxruntime
 
     table = markdown_table(
-        ["what", "input", "torch wall ms", "onnxruntime wall ms", "ratio wall (range)",
-         "torch CPU ms", "onnxruntime CPU ms", "ratio CPU (range)"],
+        [
+            "what",
+            "input",
+            "torch wall ms",
+            "onnxruntime wall ms",
+            "ratio wall (range)",
+            "torch CPU ms",
+            "onnxruntime CPU ms",
+            "ratio CPU (range)",
+        ],
         rows,
     )
     return (

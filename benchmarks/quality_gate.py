@@ -49,8 +49,9 @@ def heldout_clips(seed0: int = SEED0) -> list[tuple[dict[str, object], list[np.n
     for i in range(N_CLIPS):
         seed = seed0 + i
         over = clip_settings(i)
-        cfg = SynthConfig.sample(np.random.default_rng(seed), split="heldout", width=SIZE, height=SIZE,
-                                 n_frames=N_FRAMES, **over)
+        cfg = SynthConfig.sample(
+            np.random.default_rng(seed), split="heldout", width=SIZE, height=SIZE, n_frames=N_FRAMES, **over
+        )
         frames = list(generate_clip(cfg, seed=seed))
         clips.append(({"seed": seed, **over}, [f.image for f in frames], [f.clean for f in frames]))
     return clips
@@ -97,9 +98,13 @@ def main(argv: list[str] | None = None) -> str:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.quality_gate")
     parser.add_argument("--weights", action="append", default=[], help="extra checkpoints to report")
     parser.add_argument("--json", type=Path, help="also write the numbers here")
-    parser.add_argument("--seed0", type=int, default=SEED0,
-                        help=f"first clip seed (default {SEED0}, the reported gate); choose among checkpoints on "
-                             "another range, e.g. 720000, so that the gate's clips stay unseen")
+    parser.add_argument(
+        "--seed0",
+        type=int,
+        default=SEED0,
+        help=f"first clip seed (default {SEED0}, the reported gate); choose among checkpoints on "
+        "another range, e.g. 720000, so that the gate's clips stay unseen",
+    )
     args = parser.parse_args(argv or [])
     clips = heldout_clips(args.seed0)
     runs: dict[str, tuple[str, dict[str, object]]] = {
@@ -118,21 +123,42 @@ def main(argv: list[str] | None = None) -> str:
         g = gate(results, clips, truth)
         record[label] = g
         ok = all(v for k, v in g.items() if k.startswith("pass_"))
-        rows.append([label, f"{g['flicker_vs_clean']:.2f}x", f"{100 * g['flicker_reduction']:.0f}%",
-                     f"{100 * g['flicker_reduction_occluder_clips']:.0f}%",
-                     f"{g['psnr_in']:.2f} -> {g['psnr_out']:.2f}", f"{g['steady_max_darkening']:+.4f}",
-                     "PASS" if ok else "fail"])
+        rows.append(
+            [
+                label,
+                f"{g['flicker_vs_clean']:.2f}x",
+                f"{100 * g['flicker_reduction']:.0f}%",
+                f"{100 * g['flicker_reduction_occluder_clips']:.0f}%",
+                f"{g['psnr_in']:.2f} -> {g['psnr_out']:.2f}",
+                f"{g['steady_max_darkening']:+.4f}",
+                "PASS" if ok else "fail",
+            ]
+        )
     if args.json:
         args.json.write_text(json.dumps(record, indent=1))
-    return "\n".join([
-        f"## Quality gate: {N_CLIPS} held-out synthetic clips x {N_FRAMES} frames ({SIZE}x{SIZE}), seeds {args.seed0}..{args.seed0 + N_CLIPS - 1}", "",
-        markdown_table(["method", "flicker vs clean", "flicker cut (disturbed)", "flicker cut (occluder clips)",
-                        "PSNR to clean (dB): input -> enhanced", "steady clips: max darkening", "gate"], rows),
-        "", f"Gate: flicker <= {FLICKER_VS_CLEAN}x the clean frames' own, PSNR up by >= {PSNR_GAIN_DB} dB, darkening <= "
-        f"{MAX_DARKENING} (the `none` row is the control and fails by design; the clean-frames row is a perfect",
-        "restoration: its flicker cut is the most that undoing the disturbances can give, because the scene's own",
-        "lighting changes with the camera's motion).",
-    ])
+    return "\n".join(
+        [
+            f"## Quality gate: {N_CLIPS} held-out synthetic clips x {N_FRAMES} frames ({SIZE}x{SIZE}), seeds {args.seed0}..{args.seed0 + N_CLIPS - 1}",
+            "",
+            markdown_table(
+                [
+                    "method",
+                    "flicker vs clean",
+                    "flicker cut (disturbed)",
+                    "flicker cut (occluder clips)",
+                    "PSNR to clean (dB): input -> enhanced",
+                    "steady clips: max darkening",
+                    "gate",
+                ],
+                rows,
+            ),
+            "",
+            f"Gate: flicker <= {FLICKER_VS_CLEAN}x the clean frames' own, PSNR up by >= {PSNR_GAIN_DB} dB, darkening <= "
+            f"{MAX_DARKENING} (the `none` row is the control and fails by design; the clean-frames row is a perfect",
+            "restoration: its flicker cut is the most that undoing the disturbances can give, because the scene's own",
+            "lighting changes with the camera's motion).",
+        ]
+    )
 
 
 if __name__ == "__main__":

@@ -26,7 +26,9 @@ import numpy as np
 from .common import REPO, markdown_table
 
 
-def synthetic_clip(path: Path, seconds: float, fps: float = 25.0, size: tuple[int, int] = (320, 240), seed: int = 0) -> Path:
+def synthetic_clip(
+    path: Path, seconds: float, fps: float = 25.0, size: tuple[int, int] = (320, 240), seed: int = 0
+) -> Path:
     """A moving, flickering gradient, written with the engine's H.264 writer."""
     from colonlight.video import VideoWriter
 
@@ -129,8 +131,13 @@ def main(argv: list[str] | None = None) -> str:
     with tempfile.TemporaryDirectory(prefix="colonlight-load-") as tmp_name:
         tmp = Path(tmp_name)
         env, label = weights_for_benchmark(tmp, args.method)
-        env.update({"COLONLIGHT_METHOD": args.method, "COLONLIGHT_WORKERS": str(args.workers),
-                    "COLONLIGHT_QUEUE_SIZE": str(max(clients) + 4)})
+        env.update(
+            {
+                "COLONLIGHT_METHOD": args.method,
+                "COLONLIGHT_WORKERS": str(args.workers),
+                "COLONLIGHT_QUEUE_SIZE": str(max(clients) + 4),
+            }
+        )
         for seconds in lengths:
             clip = synthetic_clip(tmp / f"clip-{seconds:g}s.mp4", seconds, size=size)  # type: ignore[arg-type]
             for n in clients:
@@ -142,20 +149,47 @@ def main(argv: list[str] | None = None) -> str:
                     wall = time.perf_counter() - t0
                     peak = srv.peak_rss_bytes() or 0
                 done = len(lat)
-                rows.append([
-                    n, f"{seconds:g} s ({clip.stat().st_size // 1024} KiB)", done, failed, retries,
-                    f"{done / wall:.2f}", f"{frames / wall:.1f}", f"{percentile(lat, 50):.2f}", f"{percentile(lat, 95):.2f}",
-                    f"{start_rss / 2**20:.0f}", f"{peak / 2**20:.0f}",
-                ])
+                rows.append(
+                    [
+                        n,
+                        f"{seconds:g} s ({clip.stat().st_size // 1024} KiB)",
+                        done,
+                        failed,
+                        retries,
+                        f"{done / wall:.2f}",
+                        f"{frames / wall:.1f}",
+                        f"{percentile(lat, 50):.2f}",
+                        f"{percentile(lat, 95):.2f}",
+                        f"{start_rss / 2**20:.0f}",
+                        f"{peak / 2**20:.0f}",
+                    ]
+                )
     head = [
-        "## Service load (`python -m benchmarks.service_load`)", "",
-        (f"Real `colonlight serve` on loopback, {args.workers} workers, method {label}, {size[0]}x{size[1]} clips at "
-         f"25 fps, extracted at 18 fps, frames + video written; {args.clips_per_client} clip(s) per client, "
-         "latency = upload start to job seen finished (polling every 50 ms); a fresh server per row."), "",
+        "## Service load (`python -m benchmarks.service_load`)",
+        "",
+        (
+            f"Real `colonlight serve` on loopback, {args.workers} workers, method {label}, {size[0]}x{size[1]} clips at "
+            f"25 fps, extracted at 18 fps, frames + video written; {args.clips_per_client} clip(s) per client, "
+            "latency = upload start to job seen finished (polling every 50 ms); a fresh server per row."
+        ),
+        "",
     ]
     table = markdown_table(
-        ["clients", "clip", "clips done", "failed", "503 retries", "clips/s", "frames/s", "p50 latency s",
-         "p95 latency s", "RSS after start MiB", "peak RSS MiB"], rows)
+        [
+            "clients",
+            "clip",
+            "clips done",
+            "failed",
+            "503 retries",
+            "clips/s",
+            "frames/s",
+            "p50 latency s",
+            "p95 latency s",
+            "RSS after start MiB",
+            "peak RSS MiB",
+        ],
+        rows,
+    )
     return "\n".join(head) + "\n" + table
 
 

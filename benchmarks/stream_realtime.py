@@ -48,14 +48,46 @@ def make_feed(path: Path, width: int, height: int, seconds: float = 10.0) -> Pat
     """A synthetic clip rendered at a quarter of the size (60 frames, played back and forth) and upscaled."""
     from colonlight.synth import SynthConfig, generate_clip
 
-    cfg = SynthConfig.sample(np.random.default_rng(11), split="heldout", width=max(32, width // 4 // 2 * 2),
-                             height=max(24, height // 4 // 2 * 2), n_frames=60, fps=float(SRC_FPS))
+    cfg = SynthConfig.sample(
+        np.random.default_rng(11),
+        split="heldout",
+        width=max(32, width // 4 // 2 * 2),
+        height=max(24, height // 4 // 2 * 2),
+        n_frames=60,
+        fps=float(SRC_FPS),
+    )
     frames = [f.image for f in generate_clip(cfg, seed=11)]
     proc = subprocess.Popen(
-        [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
-         "-s", f"{cfg.width}x{cfg.height}", "-framerate", str(SRC_FPS), "-i", "-",
-         "-vf", f"scale={width}:{height}:flags=bicubic", "-c:v", "libx264", "-preset", "veryfast", "-crf", "20",
-         "-g", str(SRC_FPS), "-pix_fmt", "yuv420p", str(path)],
+        [
+            ffmpeg_exe(),
+            "-hide_banner",
+            "-loglevel",
+            "error",
+            "-y",
+            "-f",
+            "rawvideo",
+            "-pix_fmt",
+            "rgb24",
+            "-s",
+            f"{cfg.width}x{cfg.height}",
+            "-framerate",
+            str(SRC_FPS),
+            "-i",
+            "-",
+            "-vf",
+            f"scale={width}:{height}:flags=bicubic",
+            "-c:v",
+            "libx264",
+            "-preset",
+            "veryfast",
+            "-crf",
+            "20",
+            "-g",
+            str(SRC_FPS),
+            "-pix_fmt",
+            "yuv420p",
+            str(path),
+        ],
         stdin=subprocess.PIPE,
     )
     assert proc.stdin is not None
@@ -90,7 +122,10 @@ def _cpu_s(pid: int) -> float | None:
 def run_stream(feed: Path, out: Path, seconds: float, extra: list[str]) -> dict:
     """One live run; returns colonlight's summary plus the memory samples."""
     colonlight = Path(sys.executable).parent / "colonlight"
-    cmd = [str(colonlight) if colonlight.exists() else sys.executable, *([] if colonlight.exists() else ["-m", "colonlight_cli.main"])]
+    cmd = [
+        str(colonlight) if colonlight.exists() else sys.executable,
+        *([] if colonlight.exists() else ["-m", "colonlight_cli.main"]),
+    ]
     cmd += ["stream", "-", "-o", str(out), "--pipe", "y4m", *extra]
     r, w = os.pipe()
     with open(os.devnull, "wb") as sink:
@@ -113,8 +148,26 @@ def run_stream(feed: Path, out: Path, seconds: float, extra: list[str]) -> dict:
         proc.kill()
         raise RuntimeError("colonlight stream did not start:\n" + "".join(log))
     feeder = subprocess.Popen(
-        [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-nostdin", "-re", "-stream_loop", "-1", "-i", str(feed),
-         "-t", str(seconds), "-c", "copy", "-f", "mpegts", "-"], stdout=w,
+        [
+            ffmpeg_exe(),
+            "-hide_banner",
+            "-loglevel",
+            "error",
+            "-nostdin",
+            "-re",
+            "-stream_loop",
+            "-1",
+            "-i",
+            str(feed),
+            "-t",
+            str(seconds),
+            "-c",
+            "copy",
+            "-f",
+            "mpegts",
+            "-",
+        ],
+        stdout=w,
     )
     os.close(w)
     t0 = time.perf_counter()
@@ -150,14 +203,33 @@ def _row(label: str, result: dict) -> list[object]:
     tenth = values[len(values) // 10] if len(values) else float("nan")
     half = len(values) // 2
     slope = np.polyfit(times[half:], values[half:], 1)[0] * 600 if len(values) - half >= 3 else float("nan")
-    p = (lambda a, q: f"{np.percentile(a, q):.1f}" if len(a) else "-")
+    p = lambda a, q: f"{np.percentile(a, q):.1f}" if len(a) else "-"
     cpu = result["cpu"]
     # CPU share while streaming (between the first and the last sample: the model load before the feed is excluded)
-    share = (cpu[-1][1] - cpu[0][1]) / (cpu[-1][0] - cpu[0][0]) if len(cpu) >= 2 and cpu[-1][0] > cpu[0][0] else float("nan")
-    return [label, f"{s['seconds']:.0f}", s["frames_in"], s["frames_out"], s["frames_dropped"], steady_drops,
-            p(lat, 50), p(lat, 95), f"{lat.max():.1f}" if len(lat) else "-", p(steady, 95),
-            f"{tenth:.0f}", f"{values[-1]:.0f}" if len(values) else "-", f"{values.max():.0f}" if len(values) else "-",
-            f"{slope:+.1f}", f"{s.get('behind_max_s', 0.0):.2f}", f"{100 * share:.0f}%", f"{min(result['load']):.1f}-{max(result['load']):.1f}"]
+    share = (
+        (cpu[-1][1] - cpu[0][1]) / (cpu[-1][0] - cpu[0][0])
+        if len(cpu) >= 2 and cpu[-1][0] > cpu[0][0]
+        else float("nan")
+    )
+    return [
+        label,
+        f"{s['seconds']:.0f}",
+        s["frames_in"],
+        s["frames_out"],
+        s["frames_dropped"],
+        steady_drops,
+        p(lat, 50),
+        p(lat, 95),
+        f"{lat.max():.1f}" if len(lat) else "-",
+        p(steady, 95),
+        f"{tenth:.0f}",
+        f"{values[-1]:.0f}" if len(values) else "-",
+        f"{values.max():.0f}" if len(values) else "-",
+        f"{slope:+.1f}",
+        f"{s.get('behind_max_s', 0.0):.2f}",
+        f"{100 * share:.0f}%",
+        f"{min(result['load']):.1f}-{max(result['load']):.1f}",
+    ]
 
 
 def stage_costs(feed: Path, frames: int = 90) -> list[list[object]]:
@@ -202,11 +274,18 @@ def stage_costs(feed: Path, frames: int = 90) -> list[list[object]]:
         encode_image(f, "jpg", 95)
     jpeg = (time.process_time() - t) / 30
     rate_out = 18
-    rows = [["decode (every source frame)", f"{1000 * decode:.1f}", SRC_FPS, f"{100 * decode * SRC_FPS:.0f}%"],
-            ["to RGB (chosen frames)", f"{1000 * convert:.1f}", rate_out, f"{100 * convert * rate_out:.0f}%"],
-            ["enhance: resize + network + gamma LUT", f"{1000 * enhance:.1f}", rate_out, f"{100 * enhance * rate_out:.0f}%"],
-            ["y4m: to YUV 4:2:0 + write", f"{1000 * y4m:.1f}", rate_out, f"{100 * y4m * rate_out:.0f}%"],
-            ["JPEG q95 (with --format jpg)", f"{1000 * jpeg:.1f}", rate_out, f"{100 * jpeg * rate_out:.0f}%"]]
+    rows = [
+        ["decode (every source frame)", f"{1000 * decode:.1f}", SRC_FPS, f"{100 * decode * SRC_FPS:.0f}%"],
+        ["to RGB (chosen frames)", f"{1000 * convert:.1f}", rate_out, f"{100 * convert * rate_out:.0f}%"],
+        [
+            "enhance: resize + network + gamma LUT",
+            f"{1000 * enhance:.1f}",
+            rate_out,
+            f"{100 * enhance * rate_out:.0f}%",
+        ],
+        ["y4m: to YUV 4:2:0 + write", f"{1000 * y4m:.1f}", rate_out, f"{100 * y4m * rate_out:.0f}%"],
+        ["JPEG q95 (with --format jpg)", f"{1000 * jpeg:.1f}", rate_out, f"{100 * jpeg * rate_out:.0f}%"],
+    ]
     main_loop = enhance + y4m
     rows.append(["processing loop per frame (enhance + y4m)", f"{1000 * main_loop:.1f}", "", ""])
     return rows
@@ -235,23 +314,45 @@ def main(argv: list[str] | None = None) -> str:
         for name in args.configs.split(","):
             result = run_stream(feed, work / name, seconds, configs[name])
             rows.append(_row(name, result))
-    return "\n".join([
-        f"## colonlight stream: {width}x{height} H.264 at {SRC_FPS} fps played live into `colonlight stream -` at 18 fps",
-        "",
-        markdown_table(["outputs", "s", "in", "out", "dropped", f"dropped after {WARMUP_S:g} s", "p50 ms", "p95 ms",
-                        "max ms", f"p95 after {WARMUP_S:g} s", "RSS MiB at 10%", "RSS at end", "RSS max",
-                        "RSS slope MiB/10 min (2nd half)", "decoder behind live, max s", "CPU (of one core)", "load avg"], rows),
-        "",
-        "targets: p95 <= 50 ms and no drops on a quiet machine; memory flat.",
-        "",
-        f"### CPU cost per frame, {width}x{height} (process CPU time, one stage at a time)",
-        "",
-        markdown_table(["stage", "CPU ms/frame", "frames/s", "share of one core"], costs),
-        "",
-        "Latency on a machine with a core to spare is about the processing loop's time per frame. "
-        f"{os.cpu_count()} cores; load average (1 / 5 / 15 min) at the end: "
-        + " / ".join(f"{x:.1f}" for x in os.getloadavg()) + ".",
-    ])
+    return "\n".join(
+        [
+            f"## colonlight stream: {width}x{height} H.264 at {SRC_FPS} fps played live into `colonlight stream -` at 18 fps",
+            "",
+            markdown_table(
+                [
+                    "outputs",
+                    "s",
+                    "in",
+                    "out",
+                    "dropped",
+                    f"dropped after {WARMUP_S:g} s",
+                    "p50 ms",
+                    "p95 ms",
+                    "max ms",
+                    f"p95 after {WARMUP_S:g} s",
+                    "RSS MiB at 10%",
+                    "RSS at end",
+                    "RSS max",
+                    "RSS slope MiB/10 min (2nd half)",
+                    "decoder behind live, max s",
+                    "CPU (of one core)",
+                    "load avg",
+                ],
+                rows,
+            ),
+            "",
+            "targets: p95 <= 50 ms and no drops on a quiet machine; memory flat.",
+            "",
+            f"### CPU cost per frame, {width}x{height} (process CPU time, one stage at a time)",
+            "",
+            markdown_table(["stage", "CPU ms/frame", "frames/s", "share of one core"], costs),
+            "",
+            "Latency on a machine with a core to spare is about the processing loop's time per frame. "
+            f"{os.cpu_count()} cores; load average (1 / 5 / 15 min) at the end: "
+            + " / ".join(f"{x:.1f}" for x in os.getloadavg())
+            + ".",
+        ]
+    )
 
 
 if __name__ == "__main__":

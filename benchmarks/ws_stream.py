@@ -49,12 +49,19 @@ def jpeg_frames(size: tuple[int, int], n: int = 24, seed: int = 0) -> list[bytes
         r = np.hypot(x - w / 2, y - h / 2) / (0.5 * np.hypot(w, h))
         lum = np.clip(r * 1.6, 0, 1) * (0.45 + 0.35 * np.sin(i / 4)) * (0.8 + 0.2 * np.sin(r * 40 - i))
         rgb = lum[..., None] * np.array([110, 130, 230], np.float32) + rng.normal(0, 3, (h, w, 1))  # BGR
-        out.append(bytes(cv2.imencode(".jpg", np.clip(rgb, 0, 255).astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 90])[1]))
+        out.append(
+            bytes(cv2.imencode(".jpg", np.clip(rgb, 0, 255).astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 90])[1])
+        )
     return out
 
 
-def run_clients(url: str, frames: list[bytes], n_clients: int, per_client: int, depth: int,
-                ) -> tuple[float, int, list[float], list[float], int]:
+def run_clients(
+    url: str,
+    frames: list[bytes],
+    n_clients: int,
+    per_client: int,
+    depth: int,
+) -> tuple[float, int, list[float], list[float], int]:
     """(wall s, frames answered, round trips s, server latencies ms, errors) of ``n_clients`` streaming at once."""
     from websockets.sync.client import connect
 
@@ -170,21 +177,49 @@ def main(argv: list[str] | None = None) -> str:
                 srv.stop()
             load1 = os.getloadavg()[0]
             fps = answered / wall if wall > 0 else float("nan")
-            rows.append([
-                n, answered, errors, f"{fps:.1f}", f"{fps / n:.1f}",
-                f"{percentile(rtts, 50) * 1000:.0f}", f"{percentile(rtts, 95) * 1000:.0f}",
-                f"{statistics.median(server_ms) if server_ms else float('nan'):.0f}", f"{cpu_ms:.1f}",
-                f"{start_rss / 2**20:.0f}", f"{peak / 2**20:.0f}", f"{load0:.1f}-{load1:.1f}",
-            ])
+            rows.append(
+                [
+                    n,
+                    answered,
+                    errors,
+                    f"{fps:.1f}",
+                    f"{fps / n:.1f}",
+                    f"{percentile(rtts, 50) * 1000:.0f}",
+                    f"{percentile(rtts, 95) * 1000:.0f}",
+                    f"{statistics.median(server_ms) if server_ms else float('nan'):.0f}",
+                    f"{cpu_ms:.1f}",
+                    f"{start_rss / 2**20:.0f}",
+                    f"{peak / 2**20:.0f}",
+                    f"{load0:.1f}-{load1:.1f}",
+                ]
+            )
     head = [
-        "## WebSocket route (`python -m benchmarks ws_stream`)", "",
-        (f"Real `colonlight serve` on loopback, method {label}, {w}x{h} JPEG frames (quality 90) in and out, "
-         f"{args.depth} frame(s) in flight per client, {args.frames} timed frames per client after "
-         f"{WARMUP_FRAMES} warm-up frames; a fresh server per row; {os.cpu_count()} cores."), "",
+        "## WebSocket route (`python -m benchmarks ws_stream`)",
+        "",
+        (
+            f"Real `colonlight serve` on loopback, method {label}, {w}x{h} JPEG frames (quality 90) in and out, "
+            f"{args.depth} frame(s) in flight per client, {args.frames} timed frames per client after "
+            f"{WARMUP_FRAMES} warm-up frames; a fresh server per row; {os.cpu_count()} cores."
+        ),
+        "",
     ]
     table = markdown_table(
-        ["clients", "frames", "client errors", "frames/s (all)", "frames/s per client", "round trip p50 ms",
-         "round trip p95 ms", "server latency p50 ms", "server CPU ms/frame", "RSS after start MiB", "peak RSS MiB", "load avg (1 min)"], rows)
+        [
+            "clients",
+            "frames",
+            "client errors",
+            "frames/s (all)",
+            "frames/s per client",
+            "round trip p50 ms",
+            "round trip p95 ms",
+            "server latency p50 ms",
+            "server CPU ms/frame",
+            "RSS after start MiB",
+            "peak RSS MiB",
+            "load avg (1 min)",
+        ],
+        rows,
+    )
     return "\n".join(head) + "\n" + table
 
 

@@ -20,19 +20,29 @@ DEFAULT_FPS = ClipOptions().fps or 0.0  # the rate enhance extracts frames at (t
 def demo(
     output: Path = typer.Option(Path("colonlight-demo"), "--output", "-o", help="Where the demo clip and results go."),
     frames: int = typer.Option(
-        90, "--frames", min=10,
+        90,
+        "--frames",
+        min=10,
         help=f"Length of the synthetic clip in frames, rendered at {DEMO_FPS:g} fps (enhance keeps about "
-             f"{DEFAULT_FPS:g} of every {DEMO_FPS:g}: 90 frames, 3 s, give 54).",
+        f"{DEFAULT_FPS:g} of every {DEMO_FPS:g}: 90 frames, 3 s, give 54).",
     ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No live display."),
 ) -> None:
     """Render a synthetic colonoscopy clip, enhance it with the default model, and say where everything is."""
-    from colonlight.synth import SynthConfig, write_clip
     import numpy as np
 
+    from colonlight.synth import SynthConfig, write_clip
+
     clip_dir = output / "input"
-    cfg = SynthConfig.sample(np.random.default_rng(DEMO_SEED), split="heldout", width=480, height=384,
-                             n_frames=frames, fps=DEMO_FPS, undisturbed_seeds=True)
+    cfg = SynthConfig.sample(
+        np.random.default_rng(DEMO_SEED),
+        split="heldout",
+        width=480,
+        height=384,
+        n_frames=frames,
+        fps=DEMO_FPS,
+        undisturbed_seeds=True,
+    )
     video_path = clip_dir / "clip.mp4"
     if not video_path.is_file():
         console.print(f"rendering a synthetic clip ({frames} frames at {DEMO_FPS:g} fps) into {clip_dir} ...")
@@ -40,8 +50,14 @@ def demo(
     enhanced = output / "enhanced"
     jobs = discover_clips([video_path], enhanced)
     with BatchDisplay(len(jobs), quiet=quiet) as display:
-        outcomes = run_batch(jobs, MethodSpec.of("rnn"), ClipOptions(fps=DEFAULT_FPS, video=True), enhanced,
-                             progress=None if quiet else display.event, on_outcome=display.outcome)
+        outcomes = run_batch(
+            jobs,
+            MethodSpec.of("rnn"),
+            ClipOptions(fps=DEFAULT_FPS, video=True),
+            enhanced,
+            progress=None if quiet else display.event,
+            on_outcome=display.outcome,
+        )
     if outcomes[0].status != "done":
         error_line(outcomes[0].error or "demo failed")
         raise typer.Exit(1)

@@ -139,7 +139,9 @@ class BatchDisplay:
         if not self.progress:
             return
         if event == "start":
-            self.clip_tasks[clip] = self.progress.add_task(f"  {printable(clip)}", total=data.get("total"), unit="frames")
+            self.clip_tasks[clip] = self.progress.add_task(
+                f"  {printable(clip)}", total=data.get("total"), unit="frames"
+            )
         elif event == "frames" and clip in self.clip_tasks:
             self.progress.update(self.clip_tasks[clip], completed=data["done"])
         elif event == "end" and clip in self.clip_tasks:
@@ -174,8 +176,13 @@ def summary(outcomes: list[ClipOutcome], seconds: float, out_dir: str) -> None:
     for col in ("clips", "enhanced", "skipped", "failed", "frames", "seconds", "frames/s"):
         table.add_column(col, justify="right")
     table.add_row(
-        str(len(outcomes)), str(len(done)), str(len(skipped)), str(len(failed)), str(frames),
-        f"{seconds:.1f}", f"{frames / seconds:.1f}" if seconds > 0 else "-",
+        str(len(outcomes)),
+        str(len(done)),
+        str(len(skipped)),
+        str(len(failed)),
+        str(frames),
+        f"{seconds:.1f}",
+        f"{frames / seconds:.1f}" if seconds > 0 else "-",
     )
     console.print(table)
     console.print(f"outputs: {printable(out_dir)}")

@@ -8,13 +8,22 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Optional
 
 import typer
 
 from colonlight import (
-    ClipOptions, ColonlightError, ManifestError, MethodSpec, OutputError, available_methods, default_workers,
-    discover, is_available, output_lock, read_camera, run_batch,
+    ClipOptions,
+    ColonlightError,
+    ManifestError,
+    MethodSpec,
+    OutputError,
+    available_methods,
+    default_workers,
+    discover,
+    is_available,
+    output_lock,
+    read_camera,
+    run_batch,
 )
 from colonlight.limits import DEFAULT_FPS
 
@@ -52,32 +61,62 @@ def _stop_signals_interrupt() -> Iterator[list[int]]:
 
 
 def enhance(
-    inputs: list[Path] = typer.Argument(..., help="Video files and/or folders (walked recursively; a folder of images is one clip)."),
-    output: Path = typer.Option(Path("colonlight-out"), "--output", "-o", envvar="COLONLIGHT_OUTPUT", help="Output folder."),
-    fps: float = typer.Option(DEFAULT_FPS, "--fps", envvar="COLONLIGHT_FPS", help="Extraction rate (FFmpeg fps-filter frame choice); 0 keeps every frame."),
+    inputs: list[Path] = typer.Argument(
+        ..., help="Video files and/or folders (walked recursively; a folder of images is one clip)."
+    ),
+    output: Path = typer.Option(
+        Path("colonlight-out"), "--output", "-o", envvar="COLONLIGHT_OUTPUT", help="Output folder."
+    ),
+    fps: float = typer.Option(
+        DEFAULT_FPS,
+        "--fps",
+        envvar="COLONLIGHT_FPS",
+        help="Extraction rate (FFmpeg fps-filter frame choice); 0 keeps every frame.",
+    ),
     method: str = options.Method,
-    weights: Optional[Path] = options.Weights,
-    model_size: Optional[str] = options.ModelSize,
-    gamma: Optional[float] = typer.Option(None, "--gamma", help="Exponent for --method gamma (out = in ** gamma)."),
+    weights: Path | None = options.Weights,
+    model_size: str | None = options.ModelSize,
+    gamma: float | None = typer.Option(None, "--gamma", help="Exponent for --method gamma (out = in ** gamma)."),
     device: str = options.Device,
     runtime: str = options.Runtime,
     content: str = options.Content,
     frames: bool = typer.Option(True, "--frames/--no-frames", help="Write enhanced frame images."),
-    video: bool = typer.Option(False, "--video/--no-video", help="Also write enhanced.mp4 (H.264, yuv420p, faststart)."),
+    video: bool = typer.Option(
+        False, "--video/--no-video", help="Also write enhanced.mp4 (H.264, yuv420p, faststart)."
+    ),
     fmt: str = typer.Option("png", "--format", "-f", envvar="COLONLIGHT_FORMAT", help="Frame image format: png | jpg."),
     quality: int = typer.Option(95, "--quality", min=1, max=100, help="JPEG quality."),
-    pattern: Optional[str] = typer.Option(None, "--pattern", help="Glob on clip paths/names, e.g. '*.mp4' or 'site1/*'."),
-    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1, envvar="COLONLIGHT_WORKERS", help="Clips processed in parallel (default: one per two cores)."),
-    cluster: Optional[str] = typer.Option(None, "--cluster", envvar="COLONLIGHT_CLUSTER", help="Dask scheduler address (tcp://HOST:8786) to run clips on."),
-    camera: Optional[Path] = typer.Option(None, "--camera", help="DSO camera.txt or COLMAP cameras.txt to copy beside each clip's frames (checked against their size)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Redo clips whose outputs are complete (default: skip them)."),
+    pattern: str | None = typer.Option(
+        None, "--pattern", help="Glob on clip paths/names, e.g. '*.mp4' or 'site1/*'."
+    ),
+    workers: int | None = typer.Option(
+        None,
+        "--workers",
+        "-j",
+        min=1,
+        envvar="COLONLIGHT_WORKERS",
+        help="Clips processed in parallel (default: one per two cores).",
+    ),
+    cluster: str | None = typer.Option(
+        None, "--cluster", envvar="COLONLIGHT_CLUSTER", help="Dask scheduler address (tcp://HOST:8786) to run clips on."
+    ),
+    camera: Path | None = typer.Option(
+        None,
+        "--camera",
+        help="DSO camera.txt or COLMAP cameras.txt to copy beside each clip's frames (checked against their size).",
+    ),
+    overwrite: bool = typer.Option(
+        False, "--overwrite", help="Redo clips whose outputs are complete (default: skip them)."
+    ),
     max_pixels: int = options.MaxPixels,
     quiet: bool = options.Quiet,
     debug: bool = options.Debug,
 ) -> None:
     """Enhance every clip under INPUTS into OUTPUT/<clip>/ (frames/, gammas.json, enhanced.mp4, times.txt, rgb.txt) plus OUTPUT/manifest.json."""
     if not is_available(method):  # imports this method only (all of them only to list them in the error)
-        raise typer.BadParameter(f"unknown method {method!r}; available: {', '.join(available_methods())}", param_hint="--method")
+        raise typer.BadParameter(
+            f"unknown method {method!r}; available: {', '.join(available_methods())}", param_hint="--method"
+        )
     if fmt not in ("png", "jpg"):
         raise typer.BadParameter("choose png or jpg", param_hint="--format")
     options.check_fps(fps)
@@ -87,9 +126,16 @@ def enhance(
         error_line(str(exc))
         raise typer.Exit(2) from None
     try:
-        clip_opts = ClipOptions(fps=fps or None, frames=frames, video=video, format=fmt, quality=quality,
-                                camera=None if cam is None else (cam.name, cam.text), max_pixels=max_pixels,
-                                content=content)
+        clip_opts = ClipOptions(
+            fps=fps or None,
+            frames=frames,
+            video=video,
+            format=fmt,
+            quality=quality,
+            camera=None if cam is None else (cam.name, cam.text),
+            max_pixels=max_pixels,
+            content=content,
+        )
     except ValueError as exc:
         raise typer.BadParameter(str(exc)) from exc
     spec = MethodSpec.of(method, **options.method_options(method, weights, model_size, device, gamma, runtime))
@@ -104,8 +150,16 @@ def enhance(
 
 
 def _run(
-    inputs: list[Path], output: Path, spec: MethodSpec, clip_opts: ClipOptions, pattern: str | None,
-    workers: int | None, cluster: str | None, overwrite: bool, quiet: bool, debug: bool,
+    inputs: list[Path],
+    output: Path,
+    spec: MethodSpec,
+    clip_opts: ClipOptions,
+    pattern: str | None,
+    workers: int | None,
+    cluster: str | None,
+    overwrite: bool,
+    quiet: bool,
+    debug: bool,
 ) -> bool:
     """The batch: load the model, hold the output folder, find the clips, run them. True if anything failed."""
     with imports_frozen():
@@ -122,8 +176,15 @@ def _run(
             t0 = time.perf_counter()
             with BatchDisplay(len(found.jobs), quiet=quiet) as display:
                 outcomes = run_batch(
-                    found.jobs, spec, clip_opts, output, workers=n_workers, overwrite=overwrite,
-                    progress=None if quiet else display.event, on_outcome=display.outcome, cluster=cluster,
+                    found.jobs,
+                    spec,
+                    clip_opts,
+                    output,
+                    workers=n_workers,
+                    overwrite=overwrite,
+                    progress=None if quiet else display.event,
+                    on_outcome=display.outcome,
+                    cluster=cluster,
                     problems=found.problems,
                 )
     except OutputError as exc:  # the output folder is a file, read-only, or held by another batch: a usage error

@@ -147,9 +147,7 @@ def evaluate(
     ] = "none,he,clahe,deflicker,zerodce,zerodce++,rnn",
     authors_checkpoint: Annotated[
         Path | None,
-        typer.Option(
-            "--authors-checkpoint", help="The authors' released .pth: adds the method 'rnn (authors)'."
-        ),
+        typer.Option("--authors-checkpoint", help="The authors' released .pth: adds the method 'rnn (authors)'."),
     ] = None,
     synthetic: Annotated[
         int,
@@ -171,9 +169,7 @@ def evaluate(
             "or heldout (knobs pushed outside them, often faster than a tracker can follow at 18 fps).",
         ),
     ] = "train",
-    size: Annotated[
-        int, typer.Option("--size", min=32, help="Side of the synthetic frames in pixels.")
-    ] = 256,
+    size: Annotated[int, typer.Option("--size", min=32, help="Side of the synthetic frames in pixels.")] = 256,
     colmap: Annotated[
         bool, typer.Option("--colmap/--no-colmap", help="Run COLMAP (pycolmap) on every method's frames.")
     ] = True,
@@ -199,15 +195,11 @@ def evaluate(
     ] = True,
     fps: Annotated[
         float,
-        typer.Option(
-            "--fps", min=0.0, help="Extraction rate of videos (FFmpeg fps-filter choice); 0 keeps all."
-        ),
+        typer.Option("--fps", min=0.0, help="Extraction rate of videos (FFmpeg fps-filter choice); 0 keeps all."),
     ] = DEFAULT_FPS,
     max_size: Annotated[
         int,
-        typer.Option(
-            "--max-size", min=0, help="Working size: long side shrunk to at most this (0: full size)."
-        ),
+        typer.Option("--max-size", min=0, help="Working size: long side shrunk to at most this (0: full size)."),
     ] = 256,
     max_frames: Annotated[
         int, typer.Option("--max-frames", min=0, help="Evaluate at most this many frames per clip (0: all).")
@@ -217,9 +209,7 @@ def evaluate(
         int,
         typer.Option("--threads", min=1, help="Torch/OpenCV threads while evaluating (cost measured alike)."),
     ] = 1,
-    workers: Annotated[
-        int, typer.Option("--workers", "-j", min=1, help="Processes rendering synthetic clips.")
-    ] = 1,
+    workers: Annotated[int, typer.Option("--workers", "-j", min=1, help="Processes rendering synthetic clips.")] = 1,
     cache: Annotated[
         bool,
         typer.Option(
@@ -271,7 +261,14 @@ def evaluate(
             console.print(f"synthetic benchmark: {synthetic} clips ({family} settings) x {frames} frames ({size}x{size}) "
                           f"in {clip_dir}")  # fmt: skip
         refs += make_benchmark(
-            clip_dir, synthetic, seed0, frames, size, workers=workers, on_clip=rendered, family=family  # type: ignore[arg-type]
+            clip_dir,
+            synthetic,
+            seed0,
+            frames,
+            size,
+            workers=workers,
+            on_clip=rendered,
+            family=family,  # type: ignore[arg-type]
         )
     if not refs:
         error_line("no clips found in " + ", ".join(str(p) for p in inputs or []))
@@ -291,9 +288,7 @@ def evaluate(
             error_line(str(exc))
             raise typer.Exit(1) from None
     if not result.methods:
-        error_line(
-            "no method could be run: " + "; ".join(f"{k}: {v}" for k, v in result.skipped_methods.items())
-        )
+        error_line("no method could be run: " + "; ".join(f"{k}: {v}" for k, v in result.skipped_methods.items()))
         raise typer.Exit(1)
     if debug:
         for c in result.clips:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -15,11 +14,13 @@ from .display import console, error_line
 
 def export(
     output: Path = typer.Option(..., "--output", "-o", help="The .onnx file to write; its sidecar is OUTPUT.json."),
-    weights: Optional[Path] = options.Weights,
-    model_size: Optional[str] = typer.Option(
-        None, "--model-size", envvar="COLONLIGHT_MODEL_SIZE",
+    weights: Path | None = options.Weights,
+    model_size: str | None = typer.Option(
+        None,
+        "--model-size",
+        envvar="COLONLIGHT_MODEL_SIZE",
         help="Network input size in pixels the graph is fixed at, or 'auto' (the default): the size the weights "
-             "were trained at (their card; 48 for the shipped model), else 48. 'full' cannot be exported.",
+        "were trained at (their card; 48 for the shipped model), else 48. 'full' cannot be exported.",
     ),
     debug: bool = options.Debug,
 ) -> None:
@@ -35,7 +36,9 @@ def export(
         except ValueError as exc:
             raise typer.BadParameter(str(exc), param_hint="--model-size") from None
         if size is None:
-            raise typer.BadParameter("the graph has a fixed input size: give a number or 'auto'", param_hint="--model-size")
+            raise typer.BadParameter(
+                "the graph has a fixed input size: give a number or 'auto'", param_hint="--model-size"
+            )
         record = export_onnx(loaded, output, size)
     except ColonlightError as exc:
         if debug:

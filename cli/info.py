@@ -46,8 +46,10 @@ def info(as_json: bool = typer.Option(False, "--json", help="Machine-readable ou
         out.print(f"{'':>24}  {dm['path']}")
         if card:
             tr = card.get("training", {})
-            out.print(f"{'':>24}  input {card.get('input_size')} px, trained {tr.get('epochs')} epochs on "
-                      f"{tr.get('train_sequences')} sequences ({tr.get('data', 'see card')})")
+            out.print(
+                f"{'':>24}  input {card.get('input_size')} px, trained {tr.get('epochs')} epochs on "
+                f"{tr.get('train_sequences')} sequences ({tr.get('data', 'see card')})"
+            )
     dev = record["device"]
     out.print(f"{'device (auto)':>24}: {dev['auto']}  ({dev['torch_threads']} CPU threads, {dev['cuda_devices']} CUDA)")  # type: ignore[index]
 

@@ -3,44 +3,63 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
 from colonlight.limits import DEFAULT_MAX_PIXELS, MAX_FPS, MAX_PIXELS_ENV
 
 Device = typer.Option("auto", "--device", envvar="COLONLIGHT_DEVICE", help="auto | cpu | cuda | cuda:N.")
-Method = typer.Option("rnn", "--method", "-m", envvar="COLONLIGHT_METHOD", help="Enhancement method (see `colonlight info`).")
-Weights: Optional[Path] = typer.Option(
-    None, "--weights", "-w", envvar="COLONLIGHT_WEIGHTS",
+Method = typer.Option(
+    "rnn", "--method", "-m", envvar="COLONLIGHT_METHOD", help="Enhancement method (see `colonlight info`)."
+)
+Weights: Path | None = typer.Option(
+    None,
+    "--weights",
+    "-w",
+    envvar="COLONLIGHT_WEIGHTS",
     help="Checkpoint: ours (.safetensors with its .json card) or the authors' .pth. Default: the shipped model.",
 )
 ModelSize = typer.Option(
-    None, "--model-size", envvar="COLONLIGHT_MODEL_SIZE",
+    None,
+    "--model-size",
+    envvar="COLONLIGHT_MODEL_SIZE",
     help="Network input size in pixels, 'full' for full-resolution input (the release's way), or 'auto' (the "
-         "default): the size the weights were trained at (their card; 48 for the shipped model), else 48.",
+    "default): the size the weights were trained at (their card; 48 for the shipped model), else 48.",
 )
 Runtime = typer.Option(
-    "torch", "--runtime", envvar="COLONLIGHT_RUNTIME",
+    "torch",
+    "--runtime",
+    envvar="COLONLIGHT_RUNTIME",
     help="Where the rnn method's network step runs: torch, or onnxruntime (CPU; the export extra; measured faster "
-         "on small CPUs, see the README's benchmarks).",
+    "on small CPUs, see the README's benchmarks).",
 )
 MaxPixels = typer.Option(
-    DEFAULT_MAX_PIXELS, "--max-pixels", envvar=MAX_PIXELS_ENV, min=1,
+    DEFAULT_MAX_PIXELS,
+    "--max-pixels",
+    envvar=MAX_PIXELS_ENV,
+    min=1,
     help="Largest frame (width x height) a clip may have; larger clips fail from their header, before decoding.",
 )
 Content = typer.Option(
-    "auto", "--content", envvar="COLONLIGHT_CONTENT",
+    "auto",
+    "--content",
+    envvar="COLONLIGHT_CONTENT",
     help="auto: find the field of view inside a black border and fixed on-screen text, let the method see only "
-         "them and write border and text pixels unchanged (a frame without either is processed as with full); "
-         "full: the whole frame.",
+    "them and write border and text pixels unchanged (a frame without either is processed as with full); "
+    "full: the whole frame.",
 )
 Debug = typer.Option(False, "--debug", envvar="COLONLIGHT_DEBUG", help="Show tracebacks of errors.")
-Quiet = typer.Option(False, "--quiet", "-q", envvar="COLONLIGHT_QUIET", help="No live display: one line per clip, for logs.")
+Quiet = typer.Option(
+    False, "--quiet", "-q", envvar="COLONLIGHT_QUIET", help="No live display: one line per clip, for logs."
+)
 
 
 def method_options(
-    method: str, weights: Path | None, model_size: str | None, device: str, gamma: float | None = None,
+    method: str,
+    weights: Path | None,
+    model_size: str | None,
+    device: str,
+    gamma: float | None = None,
     runtime: str | None = None,
 ) -> dict[str, object]:
     """The keyword options of ``method`` from the CLI's flags (flags a method does not take are refused)."""
@@ -64,7 +83,7 @@ def method_options(
     if method == "gamma" and gamma is not None:
         opts["gamma"] = gamma
     elif gamma is not None:
-        raise typer.BadParameter(f"--gamma applies only to --method gamma")
+        raise typer.BadParameter("--gamma applies only to --method gamma")
     return opts
 
 
@@ -92,5 +111,6 @@ def invocation(ctx: typer.Context) -> str:
 def check_fps(fps: float) -> None:
     """A usage error unless ``0 <= fps <= MAX_FPS`` (the service's bound too)."""
     if not 0 <= fps <= MAX_FPS:
-        raise typer.BadParameter(f"must be within 0..{MAX_FPS:g} frames per second (0 keeps every frame), got {fps:g}",
-                                 param_hint="--fps")
+        raise typer.BadParameter(
+            f"must be within 0..{MAX_FPS:g} frames per second (0 keeps every frame), got {fps:g}", param_hint="--fps"
+        )

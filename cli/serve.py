@@ -38,7 +38,11 @@ def serve(
     from uvicorn.config import LOGGING_CONFIG
 
     log_config = copy.deepcopy(LOGGING_CONFIG)  # the service's own log lines go where uvicorn's go
-    log_config["loggers"]["colonlight"] = {"handlers": ["default"], "level": settings.log_level.upper(), "propagate": False}
+    log_config["loggers"]["colonlight"] = {
+        "handlers": ["default"],
+        "level": settings.log_level.upper(),
+        "propagate": False,
+    }
     uvicorn.run(
         create_app(settings),
         host=settings.host,

@@ -6,14 +6,20 @@ from __future__ import annotations
 import signal
 import sys
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import typer
 
 from colonlight import ColonlightError, MethodSpec, available_methods, is_available, network_threads, reuse_frame_memory
 from colonlight.limits import DEFAULT_FPS, MAX_FPS
 from colonlight.live import (
-    DEFAULT_BUFFER, DEFAULT_TIMEOUT_S, PIPE_FORMATS, LiveStream, OutputPlan, StreamOptions, parse_source,
+    DEFAULT_BUFFER,
+    DEFAULT_TIMEOUT_S,
+    PIPE_FORMATS,
+    LiveStream,
+    OutputPlan,
+    StreamOptions,
+    parse_source,
     prepare_output_dir,
 )
 from colonlight.live.reader import BACKOFF_MAX_S, BACKOFF_START_S
@@ -52,15 +58,20 @@ def _summary(summary: Any) -> None:
     console.print(
         f"[bold]colonlight stream[/]: frames in {summary.frames_in}, out {summary.frames_out}, "
         f"dropped {summary.frames_dropped} ({summary.frames_decoded} source frames decoded, "
-        f"{summary.connections} connection(s), {summary.seconds:.1f} s)", soft_wrap=True,
+        f"{summary.connections} connection(s), {summary.seconds:.1f} s)",
+        soft_wrap=True,
     )
     console.print(
         f"latency arrival -> output: p50 {ms(summary.latency_p50_ms)} ms, p95 {ms(summary.latency_p95_ms)} ms, "
-        f"max {ms(summary.latency_max_ms)} ms", soft_wrap=True,
+        f"max {ms(summary.latency_max_ms)} ms",
+        soft_wrap=True,
     )
     if summary.behind_max_s >= 0.5:
-        console.print(f"[yellow]decoding fell up to {summary.behind_max_s:.1f} s behind the source's clock[/] "
-                      "(the machine could not keep up; that backlog waited before the decoder)", soft_wrap=True)
+        console.print(
+            f"[yellow]decoding fell up to {summary.behind_max_s:.1f} s behind the source's clock[/] "
+            "(the machine could not keep up; that backlog waited before the decoder)",
+            soft_wrap=True,
+        )
     note = f"ended: {summary.end}" if summary.end != "error" else "ended by an error"
     if summary.frames_damaged:
         note += f"; {summary.frames_damaged} undecodable packets skipped"
@@ -68,27 +79,69 @@ def _summary(summary: Any) -> None:
 
 
 def stream(
-    source: Optional[str] = typer.Argument(None, metavar="SRC", help="/dev/videoN, a udp:// tcp:// http:// rtsp:// rtmp:// URL, a video file, or - for a container stream (MPEG-TS, Matroska, raw H.264) on standard input."),
-    output: Optional[Path] = typer.Option(None, "--output", "-o", help="Folder for frames/, gammas.jsonl (one line per frame, flushed) and stream.json."),
-    pipe: Optional[str] = typer.Option(None, "--pipe", help="Also write the enhanced frames to standard output: y4m | mpegts."),
-    fps: float = typer.Option(DEFAULT_FPS, "--fps", envvar="COLONLIGHT_FPS", help="Output rate (FFmpeg fps-filter frame choice); 0 keeps every frame."),
+    source: str | None = typer.Argument(
+        None,
+        metavar="SRC",
+        help="/dev/videoN, a udp:// tcp:// http:// rtsp:// rtmp:// URL, a video file, or - for a container stream (MPEG-TS, Matroska, raw H.264) on standard input.",
+    ),
+    output: Path | None = typer.Option(
+        None, "--output", "-o", help="Folder for frames/, gammas.jsonl (one line per frame, flushed) and stream.json."
+    ),
+    pipe: str | None = typer.Option(
+        None, "--pipe", help="Also write the enhanced frames to standard output: y4m | mpegts."
+    ),
+    fps: float = typer.Option(
+        DEFAULT_FPS,
+        "--fps",
+        envvar="COLONLIGHT_FPS",
+        help="Output rate (FFmpeg fps-filter frame choice); 0 keeps every frame.",
+    ),
     method: str = options.Method,
-    weights: Optional[Path] = options.Weights,
-    model_size: Optional[str] = options.ModelSize,
-    gamma: Optional[float] = typer.Option(None, "--gamma", help="Exponent for --method gamma (out = in ** gamma)."),
+    weights: Path | None = options.Weights,
+    model_size: str | None = options.ModelSize,
+    gamma: float | None = typer.Option(None, "--gamma", help="Exponent for --method gamma (out = in ** gamma)."),
     device: str = options.Device,
-    frames: bool = typer.Option(True, "--frames/--no-frames", help="Write enhanced frames into OUTPUT/frames/ (with --output)."),
-    fmt: str = typer.Option("jpg", "--format", "-f", help="Frame image format: jpg (default: at 1080p a PNG costs ~20x the CPU of a JPEG, too much at 18 fps on 2 cores) | png."),
+    frames: bool = typer.Option(
+        True, "--frames/--no-frames", help="Write enhanced frames into OUTPUT/frames/ (with --output)."
+    ),
+    fmt: str = typer.Option(
+        "jpg",
+        "--format",
+        "-f",
+        help="Frame image format: jpg (default: at 1080p a PNG costs ~20x the CPU of a JPEG, too much at 18 fps on 2 cores) | png.",
+    ),
     quality: int = typer.Option(95, "--quality", min=1, max=100, help="JPEG quality."),
     keep: int = typer.Option(0, "--keep", min=0, help="Keep only the newest N frames in OUTPUT/frames/ (0: all)."),
-    realtime: bool = typer.Option(False, "--realtime", help="Play a file at its own rate, as a live source (default: as fast as possible, no drops)."),
-    drop: str = typer.Option("auto", "--drop", help="When processing falls behind: oldest (drop the oldest waiting frame) | newest | never (wait; a file's default) | auto."),
-    buffer: int = typer.Option(DEFAULT_BUFFER, "--buffer", min=1, max=64, help="Frames that may wait for processing before drops start."),
-    reconnect: bool = typer.Option(False, "--reconnect", help=f"Reopen a lost or ended network stream or device, with backoff ({BACKOFF_START_S:g} s doubling to {BACKOFF_MAX_S:g} s); the recurrent state is kept."),
-    timeout: float = typer.Option(DEFAULT_TIMEOUT_S, "--timeout", min=0.1, help="Seconds without data before a live source counts as lost."),
-    duration: Optional[float] = typer.Option(None, "--duration", min=0.0, help="Stop after this many seconds."),
-    input_format: Optional[str] = typer.Option(None, "--input-format", help="Force FFmpeg's demuxer (e.g. mpegts, matroska, h264, v4l2)."),
-    input_option: list[str] = typer.Option([], "--input-option", help="KEY=VALUE passed to FFmpeg when opening SRC (repeatable), e.g. video_size=1280x720, framerate=30, rtsp_transport=udp."),
+    realtime: bool = typer.Option(
+        False,
+        "--realtime",
+        help="Play a file at its own rate, as a live source (default: as fast as possible, no drops).",
+    ),
+    drop: str = typer.Option(
+        "auto",
+        "--drop",
+        help="When processing falls behind: oldest (drop the oldest waiting frame) | newest | never (wait; a file's default) | auto.",
+    ),
+    buffer: int = typer.Option(
+        DEFAULT_BUFFER, "--buffer", min=1, max=64, help="Frames that may wait for processing before drops start."
+    ),
+    reconnect: bool = typer.Option(
+        False,
+        "--reconnect",
+        help=f"Reopen a lost or ended network stream or device, with backoff ({BACKOFF_START_S:g} s doubling to {BACKOFF_MAX_S:g} s); the recurrent state is kept.",
+    ),
+    timeout: float = typer.Option(
+        DEFAULT_TIMEOUT_S, "--timeout", min=0.1, help="Seconds without data before a live source counts as lost."
+    ),
+    duration: float | None = typer.Option(None, "--duration", min=0.0, help="Stop after this many seconds."),
+    input_format: str | None = typer.Option(
+        None, "--input-format", help="Force FFmpeg's demuxer (e.g. mpegts, matroska, h264, v4l2)."
+    ),
+    input_option: list[str] = typer.Option(
+        [],
+        "--input-option",
+        help="KEY=VALUE passed to FFmpeg when opening SRC (repeatable), e.g. video_size=1280x720, framerate=30, rtsp_transport=udp.",
+    ),
     list_devices: bool = typer.Option(False, "--list-devices", help="List the capture devices and exit."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace the outputs of an earlier stream in OUTPUT."),
     quiet: bool = options.Quiet,
@@ -102,7 +155,9 @@ def stream(
     if source is None:
         raise typer.BadParameter("missing SRC (a device, URL, file or -)", param_hint="SRC")
     if not is_available(method):
-        raise typer.BadParameter(f"unknown method {method!r}; available: {', '.join(available_methods())}", param_hint="--method")
+        raise typer.BadParameter(
+            f"unknown method {method!r}; available: {', '.join(available_methods())}", param_hint="--method"
+        )
     if fmt not in ("png", "jpg"):
         raise typer.BadParameter("choose png or jpg", param_hint="--format")
     if not 0 <= fps <= MAX_FPS:
@@ -113,12 +168,23 @@ def stream(
     if output is None and pipe is None:
         raise typer.BadParameter("nothing to write: give --output DIR and/or --pipe y4m|mpegts")
     if pipe is not None and sys.stdout.isatty():
-        raise typer.BadParameter("standard output is a terminal: send it to a program (| consumer) or a file", param_hint="--pipe")
+        raise typer.BadParameter(
+            "standard output is a terminal: send it to a program (| consumer) or a file", param_hint="--pipe"
+        )
     if source == "-" and sys.stdin.isatty():
-        raise typer.BadParameter("standard input is a terminal: pipe a stream into it (producer | colonlight stream -)", param_hint="SRC")
+        raise typer.BadParameter(
+            "standard input is a terminal: pipe a stream into it (producer | colonlight stream -)", param_hint="SRC"
+        )
     try:
-        opts = StreamOptions(fps=fps or None, realtime=realtime, drop=drop, buffer=buffer, reconnect=reconnect,
-                             timeout_s=timeout, duration_s=duration)
+        opts = StreamOptions(
+            fps=fps or None,
+            realtime=realtime,
+            drop=drop,
+            buffer=buffer,
+            reconnect=reconnect,
+            timeout_s=timeout,
+            duration_s=duration,
+        )
     except ValueError as exc:
         raise typer.BadParameter(str(exc)) from exc
     spec = MethodSpec.of(method, **options.method_options(method, weights, model_size, device, gamma))
@@ -136,9 +202,18 @@ def stream(
     if "torch" in sys.modules:  # the method uses torch: its threads as `enhance` sets them (one for the small net)
         sys.modules["torch"].set_num_threads(network_threads(spec, 1))
     reuse_frame_memory()
-    plan = OutputPlan(out_dir=output, frames=frames, format=fmt, quality=quality, keep=keep, pipe=pipe,
-                      pipe_file=sys.stdout.buffer if pipe else None)
-    notify = (lambda message: None) if quiet else (lambda message: console.print(f"[yellow]{message}[/]", soft_wrap=True))
+    plan = OutputPlan(
+        out_dir=output,
+        frames=frames,
+        format=fmt,
+        quality=quality,
+        keep=keep,
+        pipe=pipe,
+        pipe_file=sys.stdout.buffer if pipe else None,
+    )
+    notify = (
+        (lambda message: None) if quiet else (lambda message: console.print(f"[yellow]{message}[/]", soft_wrap=True))
+    )
     try:
         live = LiveStream(src, engine, opts, plan, notify=notify)
     except ColonlightError as exc:

@@ -19,12 +19,20 @@ def synth(
     width: int = typer.Option(384, "--width", min=32),
     height: int = typer.Option(288, "--height", min=32),
     fps: float = typer.Option(DEFAULT_FPS, "--fps", min=1.0, help="Frame rate of the clip (and its timestamps)."),
-    split: str = typer.Option("train", "--split", help="Parameter family: train | heldout (ranges never used in training)."),
+    split: str = typer.Option(
+        "train", "--split", help="Parameter family: train | heldout (ranges never used in training)."
+    ),
     video: bool = typer.Option(True, "--video/--no-video", help="Write clip.mp4 (H.264)."),
     workers: int = typer.Option(2, "--workers", "-j", min=1),
-    border: str = typer.Option("none", "--border", help="Draw a scope's black border around the field of view: none | round | octagon."),
-    fov: float = typer.Option(0.96, "--fov", min=0.3, max=1.0, help="Field of view height as a share of the frame height (with --border)."),
-    text: bool = typer.Option(False, "--text/--no-text", help="Draw fixed on-screen text (patient fields, time, scope settings)."),
+    border: str = typer.Option(
+        "none", "--border", help="Draw a scope's black border around the field of view: none | round | octagon."
+    ),
+    fov: float = typer.Option(
+        0.96, "--fov", min=0.3, max=1.0, help="Field of view height as a share of the frame height (with --border)."
+    ),
+    text: bool = typer.Option(
+        False, "--text/--no-text", help="Draw fixed on-screen text (patient fields, time, scope settings)."
+    ),
 ) -> None:
     """Render synthetic colonoscopy clips: frames/, clean/, depth/, poses.txt (TUM), intrinsics.json, lighting.json."""
     from colonlight.synth import make_dataset
@@ -36,8 +44,17 @@ def synth(
         raise typer.BadParameter(f"choose one of {', '.join(BORDERS)}", param_hint="--border")
     overlay = OverlaySpec(border=border, fov=fov, text=text)  # type: ignore[arg-type]
     paths = make_dataset(
-        output, clips, seed=seed, split=split, width=width, height=height, n_frames=frames, fps=fps,
-        workers=workers, video=video, overlay=overlay if overlay.active else None,
+        output,
+        clips,
+        seed=seed,
+        split=split,
+        width=width,
+        height=height,
+        n_frames=frames,
+        fps=fps,
+        workers=workers,
+        video=video,
+        overlay=overlay if overlay.active else None,
     )
     for p in paths:
         console.print(f"wrote {p}")

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Optional
+from typing import TYPE_CHECKING
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -17,14 +17,35 @@ if TYPE_CHECKING:
     from colonlight.train import EpochRecord
 
 
-def _synthetic_clips(run_dir: Path, n: int, seed: int, frames: int, split: str, render: int,
-                     steady: float, occluders: float, clean_seeds: float) -> list[Path]:
+def _synthetic_clips(
+    run_dir: Path,
+    n: int,
+    seed: int,
+    frames: int,
+    split: str,
+    render: int,
+    steady: float,
+    occluders: float,
+    clean_seeds: float,
+) -> list[Path]:
     """Render (or reuse) synthetic clips from the generator's training family; returns their frame folders."""
     from colonlight.synth import make_dataset
 
-    dirs = make_dataset(run_dir / "data" / split, n, seed=seed, split="train", width=render, height=render,
-                        n_frames=frames, fps=18.0, workers=2, video=False, steady_fraction=steady,
-                        occluder_fraction=occluders, clean_seeds_fraction=clean_seeds)
+    dirs = make_dataset(
+        run_dir / "data" / split,
+        n,
+        seed=seed,
+        split="train",
+        width=render,
+        height=render,
+        n_frames=frames,
+        fps=18.0,
+        workers=2,
+        video=False,
+        steady_fraction=steady,
+        occluder_fraction=occluders,
+        clean_seeds_fraction=clean_seeds,
+    )
     return [d / "frames" for d in dirs]
 
 
@@ -36,21 +57,58 @@ def _clips(paths: list[Path]) -> list[Path]:
 
 def train_cmd(
     ctx: typer.Context,
-    data: Optional[list[Path]] = typer.Argument(None, help="Clips: videos and/or frame folders (walked recursively)."),
-    output: Path = typer.Option(Path("colonlight-train"), "--output", "-o", help="Run folder: checkpoints/, the weights and card."),
-    val: Optional[list[Path]] = typer.Option(None, "--val", help="Validation clip(s); default: the last clip of DATA."),
+    data: list[Path] | None = typer.Argument(None, help="Clips: videos and/or frame folders (walked recursively)."),
+    output: Path = typer.Option(
+        Path("colonlight-train"), "--output", "-o", help="Run folder: checkpoints/, the weights and card."
+    ),
+    val: list[Path] | None = typer.Option(None, "--val", help="Validation clip(s); default: the last clip of DATA."),
     synthetic: int = typer.Option(0, "--synthetic", min=0, help="Also render this many synthetic training clips."),
     synthetic_seed: int = typer.Option(1000, "--synthetic-seed", help="Seed of the first synthetic clip."),
     synthetic_frames: int = typer.Option(100, "--synthetic-frames", min=12),
-    synthetic_val: int = typer.Option(2, "--synthetic-val", min=0, help="Synthetic validation clips (seeds after the training ones)."),
-    synthetic_size: int = typer.Option(128, "--synthetic-size", min=32, help="Render size of synthetic clips (then resized to --size)."),
-    synthetic_steady: float = typer.Option(0.25, "--synthetic-steady", min=0.0, max=1.0, help="Fraction of synthetic clips with steady lighting (to be left alone)."),
-    synthetic_occluders: float = typer.Option(0.0, "--synthetic-occluders", min=0.0, max=1.0, help="Fraction of synthetic clips forced to have a close-occluder moment (otherwise each clip has one by chance, 35%)."),
-    synthetic_clean_seeds: float = typer.Option(0.0, "--synthetic-clean-seeds", min=0.0, max=1.0, help="Fraction of synthetic clips whose first two frames are undisturbed."),
-    head: str = typer.Option("gamma", "--head", help="gamma (the paper's: one gamma per frame) | gain-gamma (a gain and a gamma per frame)."),
-    objective: str = typer.Option("paper", "--objective", help="paper (unsupervised, the paper's loss) | restore (to the clean frames of synthetic clips) | hybrid (both)."),
-    consistency: float = typer.Option(0.5, "--consistency", min=0.0, help="Weight of the paper's loss in --objective hybrid."),
-    temporal: float = typer.Option(0.0, "--temporal", min=0.0, help="Weight of the restoration error's frame-to-frame change (--objective restore|hybrid): the output flickers no more than the clean frames."),
+    synthetic_val: int = typer.Option(
+        2, "--synthetic-val", min=0, help="Synthetic validation clips (seeds after the training ones)."
+    ),
+    synthetic_size: int = typer.Option(
+        128, "--synthetic-size", min=32, help="Render size of synthetic clips (then resized to --size)."
+    ),
+    synthetic_steady: float = typer.Option(
+        0.25,
+        "--synthetic-steady",
+        min=0.0,
+        max=1.0,
+        help="Fraction of synthetic clips with steady lighting (to be left alone).",
+    ),
+    synthetic_occluders: float = typer.Option(
+        0.0,
+        "--synthetic-occluders",
+        min=0.0,
+        max=1.0,
+        help="Fraction of synthetic clips forced to have a close-occluder moment (otherwise each clip has one by chance, 35%).",
+    ),
+    synthetic_clean_seeds: float = typer.Option(
+        0.0,
+        "--synthetic-clean-seeds",
+        min=0.0,
+        max=1.0,
+        help="Fraction of synthetic clips whose first two frames are undisturbed.",
+    ),
+    head: str = typer.Option(
+        "gamma", "--head", help="gamma (the paper's: one gamma per frame) | gain-gamma (a gain and a gamma per frame)."
+    ),
+    objective: str = typer.Option(
+        "paper",
+        "--objective",
+        help="paper (unsupervised, the paper's loss) | restore (to the clean frames of synthetic clips) | hybrid (both).",
+    ),
+    consistency: float = typer.Option(
+        0.5, "--consistency", min=0.0, help="Weight of the paper's loss in --objective hybrid."
+    ),
+    temporal: float = typer.Option(
+        0.0,
+        "--temporal",
+        min=0.0,
+        help="Weight of the restoration error's frame-to-frame change (--objective restore|hybrid): the output flickers no more than the clean frames.",
+    ),
     method: str = typer.Option("rnn", "--method", help="rnn (the paper's model) | zerodce | zerodce++ (baselines)."),
     size: int = typer.Option(48, "--size", min=16, help="Training input size (match the inference default, 48)."),
     epochs: int = typer.Option(10, "--epochs", min=1),
@@ -59,8 +117,15 @@ def train_cmd(
     seq_len: int = typer.Option(10, "--seq-len", min=3),
     stride: int = typer.Option(5, "--stride", min=1),
     seed: int = typer.Option(0, "--seed"),
-    anchor: float = typer.Option(0.0, "--anchor", min=0.0, help="Weight of the brightness anchor added to the paper's loss (0: the paper's objective exactly)."),
-    init: Optional[str] = typer.Option(None, "--init", help="Start from a checkpoint (ours or the authors' .pth), or 'default'."),
+    anchor: float = typer.Option(
+        0.0,
+        "--anchor",
+        min=0.0,
+        help="Weight of the brightness anchor added to the paper's loss (0: the paper's objective exactly).",
+    ),
+    init: str | None = typer.Option(
+        None, "--init", help="Start from a checkpoint (ours or the authors' .pth), or 'default'."
+    ),
     name: str = typer.Option("colonlight-rnn", "--name", help="Name of the weights file and card."),
     resume: bool = typer.Option(True, "--resume/--no-resume", help="Continue from the last epoch saved in OUTPUT."),
     fps: float = typer.Option(DEFAULT_FPS, "--fps", help="Extraction rate for video clips (0: every frame)."),
@@ -71,19 +136,47 @@ def train_cmd(
     val_clips = _clips(list(val or []))
     extra: dict[str, object] = {"command": command}
     if synthetic:
-        train_clips += _synthetic_clips(output, synthetic, synthetic_seed, synthetic_frames, "train", synthetic_size,
-                                        synthetic_steady, synthetic_occluders, synthetic_clean_seeds)
-        extra["data"] = (f"synthetic: {synthetic} clips x {synthetic_frames} frames rendered at {synthetic_size}px, "
-                         f"seeds {synthetic_seed}..{synthetic_seed + synthetic - 1}, generator split 'train', "
-                         f"about {synthetic_steady:.0%} of them with steady lighting (no disturbance)"
-                         + (f", about {synthetic_occluders:.0%} forced to have a close-occluder moment"
-                            if synthetic_occluders else "")
-                         + (f", about {synthetic_clean_seeds:.0%} with two undisturbed first frames"
-                            if synthetic_clean_seeds else ""))
+        train_clips += _synthetic_clips(
+            output,
+            synthetic,
+            synthetic_seed,
+            synthetic_frames,
+            "train",
+            synthetic_size,
+            synthetic_steady,
+            synthetic_occluders,
+            synthetic_clean_seeds,
+        )
+        extra["data"] = (
+            f"synthetic: {synthetic} clips x {synthetic_frames} frames rendered at {synthetic_size}px, "
+            f"seeds {synthetic_seed}..{synthetic_seed + synthetic - 1}, generator split 'train', "
+            f"about {synthetic_steady:.0%} of them with steady lighting (no disturbance)"
+            + (
+                f", about {synthetic_occluders:.0%} forced to have a close-occluder moment"
+                if synthetic_occluders
+                else ""
+            )
+            + (
+                f", about {synthetic_clean_seeds:.0%} with two undisturbed first frames"
+                if synthetic_clean_seeds
+                else ""
+            )
+        )
         if synthetic_val and not val_clips:
-            val_clips = _synthetic_clips(output, synthetic_val, synthetic_seed + synthetic, synthetic_frames, "val",
-                                          synthetic_size, synthetic_steady, synthetic_occluders, synthetic_clean_seeds)
-            extra["validation_data"] = f"synthetic: {synthetic_val} clips, seeds {synthetic_seed + synthetic}..{synthetic_seed + synthetic + synthetic_val - 1}"
+            val_clips = _synthetic_clips(
+                output,
+                synthetic_val,
+                synthetic_seed + synthetic,
+                synthetic_frames,
+                "val",
+                synthetic_size,
+                synthetic_steady,
+                synthetic_occluders,
+                synthetic_clean_seeds,
+            )
+            extra["validation_data"] = (
+                f"synthetic: {synthetic_val} clips, seeds {synthetic_seed + synthetic}..{synthetic_seed + synthetic + synthetic_val - 1}"
+            )
     if not train_clips:
         raise typer.BadParameter("give clips to train on, or --synthetic N")
     if not val_clips and len(train_clips) > 1:
@@ -101,13 +194,32 @@ def train_cmd(
     from colonlight.train import TrainConfig, train
 
     try:
-        cfg = TrainConfig(size=size, seq_len=seq_len, stride=stride, batch=batch, lr=lr, epochs=epochs, seed=seed,
-                          fps=fps or None, init=init, anchor=anchor, head=head, objective=objective,
-                          consistency=consistency, temporal=temporal)
+        cfg = TrainConfig(
+            size=size,
+            seq_len=seq_len,
+            stride=stride,
+            batch=batch,
+            lr=lr,
+            epochs=epochs,
+            seed=seed,
+            fps=fps or None,
+            init=init,
+            anchor=anchor,
+            head=head,
+            objective=objective,
+            consistency=consistency,
+            temporal=temporal,
+        )
     except ValueError as exc:
         raise typer.BadParameter(str(exc)) from None
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("loss {task.fields[loss]:.4f}"),
-                  TimeRemainingColumn(), console=console) as progress:
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("loss {task.fields[loss]:.4f}"),
+        TimeRemainingColumn(),
+        console=console,
+    ) as progress:
         task = progress.add_task("epoch", total=None, loss=float("nan"))
 
         def on_step(epoch: int, step: int, steps: int, loss: float) -> None:
@@ -115,16 +227,36 @@ def train_cmd(
 
         def on_epoch(rec: EpochRecord) -> None:
             val_txt = f"{rec.val_loss:.4f}" if rec.val_loss is not None else "-"
-            progress.console.print(f"epoch {rec.epoch}: train loss {rec.train_loss:.4f}, val loss {val_txt}, {rec.seconds:.0f} s")
+            progress.console.print(
+                f"epoch {rec.epoch}: train loss {rec.train_loss:.4f}, val loss {val_txt}, {rec.seconds:.0f} s"
+            )
 
-        result = train(train_clips, val_clips, output, cfg, name=name, card_extra=extra, resume=resume,
-                       on_step=on_step, on_epoch=on_epoch)
+        result = train(
+            train_clips,
+            val_clips,
+            output,
+            cfg,
+            name=name,
+            card_extra=extra,
+            resume=resume,
+            on_step=on_step,
+            on_epoch=on_epoch,
+        )
     console.print(f"weights: {result.weights}\ncard:    {result.weights.with_suffix('.json')}")
 
 
 def _train_zerodce(
-    clips: list[Path], variant: str, output: Path, name: str, epochs: int, size: int, batch: int, lr: float,
-    seed: int, fps: float, extra: dict[str, object],
+    clips: list[Path],
+    variant: str,
+    output: Path,
+    name: str,
+    epochs: int,
+    size: int,
+    batch: int,
+    lr: float,
+    seed: int,
+    fps: float,
+    extra: dict[str, object],
 ) -> None:
     """Zero-DCE / Zero-DCE++ on every 3rd frame of the clips, without the colour-constancy loss (as the paper did)."""
     from colonlight.methods.zerodce_train import train_zerodce
@@ -138,8 +270,16 @@ def _train_zerodce(
 
     stem = name if name != "colonlight-rnn" else variant
     result = train_zerodce(
-        frames(), variant=variant, epochs=epochs, lr=lr, batch=batch, size=size, seed=seed,
-        out_path=output / f"{stem}.safetensors", colour_constancy_weight=0.0, name=stem,
+        frames(),
+        variant=variant,
+        epochs=epochs,
+        lr=lr,
+        batch=batch,
+        size=size,
+        seed=seed,
+        out_path=output / f"{stem}.safetensors",
+        colour_constancy_weight=0.0,
+        name=stem,
         card_extra={**extra, "frames": "every 3rd frame of the training clips"},
         on_epoch=lambda e: console.print(f"epoch {e.epoch}: loss {e.loss:.4f}, {e.seconds:.0f} s"),
     )

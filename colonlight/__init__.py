@@ -73,8 +73,8 @@ if TYPE_CHECKING:
     from .errors import CheckpointError, ColonlightError, DeviceError, InputError, OptionError
     from .jobs import ClipJob, ClipOutcome, MethodSpec, estimate_frames, method_for, run_clip
     from .methods import FrameResult, Method, MethodStream, available_methods, create_method, is_available
-    from .outdir import OutputError, output_lock
     from .model import GammaNet
+    from .outdir import OutputError, output_lock
     from .pipeline import ClipOptions, ClipResult, enhance_clip, iter_enhanced
     from .slam_layout import read_camera
     from .streaming import enhance_frames

@@ -33,10 +33,16 @@ from .atomic import remove_stale_temporaries, write_json_atomic
 from .discovery import VIDEO_SUFFIXES, discover_clips  # noqa: F401 - re-exported (the batch's API)
 from .errors import ColonlightError
 from .jobs import (  # noqa: F401 - the job types and run_clip, re-exported (the batch's API)
-    ClipJob, ClipOutcome, MethodSpec, ProgressFn, estimate_frames, method_for, run_clip,
+    ClipJob,
+    ClipOutcome,
+    MethodSpec,
+    ProgressFn,
+    estimate_frames,
+    method_for,
+    run_clip,
 )
-from .methods import Method
 from .limits import available_cores
+from .methods import Method
 from .outdir import output_lock
 from .pipeline import GAMMAS_FILE, ClipOptions
 
@@ -46,6 +52,7 @@ PATH_ENCODING = "utf-8, surrogateescape (a byte 0xNN that is not UTF-8 is writte
 
 
 # ----------------------------------------------------------------------------------------------- running
+
 
 def warm_method(spec: MethodSpec) -> Method:
     """Build the method of ``spec`` in this process now (a bad checkpoint or device fails here, not mid-batch)."""
@@ -82,8 +89,13 @@ class Manifest:
         return Manifest(path, settings, clips)
 
     def record(self, outcome: ClipOutcome) -> None:
-        entry: dict[str, Any] = {"clip": outcome.name, "source": outcome.source, "status": outcome.status,
-                                 "frames": outcome.frames, "seconds": round(outcome.seconds, 3)}
+        entry: dict[str, Any] = {
+            "clip": outcome.name,
+            "source": outcome.source,
+            "status": outcome.status,
+            "frames": outcome.frames,
+            "seconds": round(outcome.seconds, 3),
+        }
         if outcome.skipped:
             entry["skipped"] = True
         if outcome.error:
@@ -257,8 +269,9 @@ def run_batch(
     out_root = Path(out_root)
     with output_lock(out_root):
         manifest = Manifest.open(out_root, {"method": spec.name, "options": dict(spec.options), **vars(opts)})
-        manifest.problems = [{"path": p.path, "error": p.message, "status": "failed" if p.failed else "skipped"}
-                             for p in problems]
+        manifest.problems = [
+            {"path": p.path, "error": p.message, "status": "failed" if p.failed else "skipped"} for p in problems
+        ]
         outcomes: dict[str, ClipOutcome] = {}
 
         def done(outcome: ClipOutcome) -> None:
@@ -321,8 +334,14 @@ def _run_pool(
             isolate, _, death = _pool_round(isolate, spec, opts, overwrite, 1, progress, done)
             if isolate:
                 guilty, isolate = isolate[0], isolate[1:]
-                done(ClipOutcome(guilty.name, str(guilty.source), "failed",
-                                 error=f"{guilty.source}: the worker process running this clip died ({death})"))
+                done(
+                    ClipOutcome(
+                        guilty.name,
+                        str(guilty.source),
+                        "failed",
+                        error=f"{guilty.source}: the worker process running this clip died ({death})",
+                    )
+                )
         todo = [j for j in lost if suspects and j not in suspects]
 
 
@@ -374,7 +393,9 @@ def _pool_round(
         mask = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
         try:
             pool = ProcessPoolExecutor(
-                max_workers=workers, mp_context=ctx, initializer=_init_pool_worker,
+                max_workers=workers,
+                mp_context=ctx,
+                initializer=_init_pool_worker,
                 initargs=(network_threads(spec, workers), os.getpid(), events),
             )
             for job in jobs:
@@ -400,7 +421,9 @@ def _pool_round(
                         suspects.append(job)
                     continue
                 except Exception as exc:  # noqa: BLE001 - e.g. a result that cannot be unpickled: this clip fails
-                    outcome = ClipOutcome(job.name, str(job.source), "failed", error=f"{job.source}: worker failed: {exc}")
+                    outcome = ClipOutcome(
+                        job.name, str(job.source), "failed", error=f"{job.source}: worker failed: {exc}"
+                    )
                 finished_jobs.add(job.name)
                 done(outcome)
             if pending and not finished:

@@ -46,9 +46,9 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 from . import __version__
-from .jobs import ClipJob, ClipOutcome, MethodSpec, ProgressFn, method_for, run_clip
 from .errors import ColonlightError
 from .extras import install_command
+from .jobs import ClipJob, ClipOutcome, MethodSpec, ProgressFn, method_for, run_clip
 from .pipeline import ClipOptions
 
 #: The scheduler's event topic for progress events (one topic, so the scheduler's capped log does not grow per run).
@@ -70,9 +70,7 @@ def cluster_timeout() -> float:
     try:
         value = float(raw) if raw else 10.0
     except ValueError:
-        raise ColonlightError(
-            f"COLONLIGHT_CLUSTER_TIMEOUT must be a number of seconds, got {raw!r}"
-        ) from None
+        raise ColonlightError(f"COLONLIGHT_CLUSTER_TIMEOUT must be a number of seconds, got {raw!r}") from None
     return max(0.5, value)
 
 
@@ -123,9 +121,7 @@ def _read_token(path: Path) -> str | None:
         return None
 
 
-def cluster_task(
-    job: ClipJob, spec: MethodSpec, opts: ClipOptions, overwrite: bool, check: _TaskCheck
-) -> ClipOutcome:
+def cluster_task(job: ClipJob, spec: MethodSpec, opts: ClipOptions, overwrite: bool, check: _TaskCheck) -> ClipOutcome:
     """The Dask task of one clip: check that this worker shares the clip's files, then :func:`run_clip`."""
     worker = _worker_address()
 
@@ -156,9 +152,7 @@ def _model_label(info: dict[str, Any] | None) -> str:
     return f"{info.get('name')} (sha256 {str(info.get('sha256'))[:12]})"
 
 
-def _probe(
-    markers: list[tuple[str, str]], sources: list[str], files: list[tuple[str, str]]
-) -> dict[str, Any]:
+def _probe(markers: list[tuple[str, str]], sources: list[str], files: list[tuple[str, str]]) -> dict[str, Any]:
     """Run on every worker before a batch: version, and which of this client's paths the worker cannot use."""
     problems: list[str] = []
     for path, token in markers:
@@ -196,9 +190,7 @@ def absolute_job(job: ClipJob) -> ClipJob:
 def absolute_spec(spec: MethodSpec) -> MethodSpec:
     """``spec`` with a relative weights path made absolute (for the same reason as :func:`absolute_job`)."""
     options = tuple(
-        (k, str(Path(v).absolute()))
-        if k == "weights" and isinstance(v, str) and not Path(v).is_absolute()
-        else (k, v)
+        (k, str(Path(v).absolute())) if k == "weights" and isinstance(v, str) and not Path(v).is_absolute() else (k, v)
         for k, v in spec.options
     )
     return spec if options == spec.options else MethodSpec(spec.name, options)
@@ -296,16 +288,12 @@ class ClusterRunner:
                     continue  # this machine cannot write there either: the clips will say so
                 written.append(path)
                 markers.append((str(path), token))
-            files = [
-                ("weights file", str(v)) for k, v in spec.options if k == "weights" and Path(str(v)).exists()
-            ]
+            files = [("weights file", str(v)) for k, v in spec.options if k == "weights" and Path(str(v)).exists()]
             sources = [str(j.source) for j in jobs if Path(j.source).exists()][:PROBE_SOURCES]
             try:
                 results = self.client.run(_probe, markers, sources, files, on_error="return")
             except Exception as exc:  # noqa: BLE001
-                raise ColonlightError(
-                    f"cannot run the checks on the Dask workers: {_one_line(exc)}"
-                ) from None
+                raise ColonlightError(f"cannot run the checks on the Dask workers: {_one_line(exc)}") from None
         finally:
             for path in written:
                 path.unlink(missing_ok=True)
@@ -316,17 +304,11 @@ class ClusterRunner:
                     f"worker {addr} cannot run colonlight ({_one_line(res)}); install colonlight {__version__} on every worker"
                 )
             elif res.get("version") != __version__:
-                problems.append(
-                    f"worker {addr} runs colonlight {res.get('version')}, this machine {__version__}"
-                )
+                problems.append(f"worker {addr} runs colonlight {res.get('version')}, this machine {__version__}")
             else:
                 problems.extend(f"worker {addr} {p}" for p in res["problems"])
         if problems:
-            hint = (
-                f"; {SHARED_FS_HINT}"
-                if any("cannot see" in p or "cannot write" in p for p in problems)
-                else ""
-            )
+            hint = f"; {SHARED_FS_HINT}" if any("cannot see" in p or "cannot write" in p for p in problems) else ""
             more = f" (and {len(problems) - 1} more problem(s))" if len(problems) > 1 else ""
             raise ColonlightError(f"{problems[0]}{more}{hint}")
 
@@ -373,16 +355,12 @@ class ClusterRunner:
                 raise
             name = type(exc).__name__
             if name == "KilledWorker":
-                why = (
-                    "its workers died too often while running it (see distributed.scheduler.allowed-failures)"
-                )
+                why = "its workers died too often while running it (see distributed.scheduler.allowed-failures)"
             elif name in ("CancelledError", "FutureCancelledError"):
                 why = f"the task was cancelled (lost the Dask scheduler at {self.address}?)"
             else:
                 why = f"{name}: {_one_line(exc)}"
-            return ClipOutcome(
-                job.name, str(job.source), "failed", error=f"{job.source}: cluster task failed: {why}"
-            )
+            return ClipOutcome(job.name, str(job.source), "failed", error=f"{job.source}: cluster task failed: {why}")
         if not isinstance(result, ClipOutcome):  # pragma: no cover - a worker with another colonlight
             return ClipOutcome(
                 job.name, str(job.source), "failed", error=f"{job.source}: unexpected task result {result!r}"

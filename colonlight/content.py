@@ -34,8 +34,8 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
-from .methods.base import FrameResult, Method, MethodStream, check_frame
 from .errors import FrameShapeError, OptionError
+from .methods.base import FrameResult, Method, MethodStream, check_frame
 
 ContentMode = Literal["auto", "full"]
 CONTENT_MODES: tuple[str, ...] = ("auto", "full")
@@ -238,8 +238,9 @@ def detect_area(stats: BlockStats, previous: ContentArea | None = None) -> Conte
     if stats.high is None or stats.low is None:
         raise ValueError("no frames in the block")
     fov = detect_fov(stats.high, stats.low)
-    if previous is not None and (fov is None or (fov.all() and not previous.fov.all()
-                                                 and is_dark_border(stats.high, stats.low, ~previous.fov))):
+    if previous is not None and (
+        fov is None or (fov.all() and not previous.fov.all() and is_dark_border(stats.high, stats.low, ~previous.fov))
+    ):
         fov = previous.fov  # no evidence against the field of view in use (a dark moment, not a new scope)
     if fov is None:
         fov = np.ones(stats.high.shape, bool)
@@ -311,8 +312,10 @@ class ContentStream(MethodStream):
         check_frame(frame)
         shape = (self._warmup[0] if self._warmup else self._placement.area.fov if self._placement else frame).shape
         if frame.shape[:2] != shape[:2]:
-            raise FrameShapeError(f"frame is {frame.shape[1]}x{frame.shape[0]}, the stream started at "
-                             f"{shape[1]}x{shape[0]}: start a new stream for a new frame size")
+            raise FrameShapeError(
+                f"frame is {frame.shape[1]}x{frame.shape[0]}, the stream started at "
+                f"{shape[1]}x{shape[0]}: start a new stream for a new frame size"
+            )
         self._stats.add(frame)
         if self._placement is None:
             self._warmup.append(frame)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+
 from .errors import OptionError
 
 _LEVELS = np.arange(256, dtype=np.float64) / 255.0

@@ -30,9 +30,9 @@ from .video import is_video
 
 #: Suffixes taken as videos even before probing, so that a broken file with such a name is reported, not ignored.
 VIDEO_SUFFIXES = frozenset(
-    ".mp4 .m4v .mov .avi .mkv .mpg .mpeg .ts .mts .m2ts .webm .wmv .flv .3gp .ogv .mxf .vob".split()
+    [".mp4", ".m4v", ".mov", ".avi", ".mkv", ".mpg", ".mpeg", ".ts", ".mts", ".m2ts", ".webm", ".wmv", ".flv", ".3gp", ".ogv", ".mxf", ".vob"]
 )
-_SIDE_SUFFIXES = frozenset(".json .txt .csv .md .yaml .yml .xml .log .ini".split())
+_SIDE_SUFFIXES = frozenset([".json", ".txt", ".csv", ".md", ".yaml", ".yml", ".xml", ".log", ".ini"])
 #: The lock file every ``colonlight enhance`` output folder holds (see :mod:`colonlight.outdir`): a folder
 #: holding it is an output, never an input.
 OUTPUT_MARKER = ".colonlight.lock"
@@ -60,7 +60,8 @@ def synthetic_clip(folder: Path) -> tuple[Path, str | None]:
         if os.path.exists(os.path.join(folder, name)):
             return Path(folder) / name, None
     return Path(folder) / SYNTH_CLIP_SOURCES[0], (
-        f"{folder}: a synthetic clip folder with neither {' nor '.join(SYNTH_CLIP_SOURCES)}")
+        f"{folder}: a synthetic clip folder with neither {' nor '.join(SYNTH_CLIP_SOURCES)}"
+    )
 
 
 @dataclass(frozen=True)
@@ -131,7 +132,9 @@ class _Walk:
                 with os.scandir(folder) as it:
                     names = sorted(e.name for e in it if not e.name.startswith("."))
             except OSError as exc:
-                self.out.problems.append(PathProblem(str(folder), f"{folder}: cannot search this folder: {_cause(exc)}"))
+                self.out.problems.append(
+                    PathProblem(str(folder), f"{folder}: cannot search this folder: {_cause(exc)}")
+                )
                 continue
             subfolders: list[Path] = []
             files: list[tuple[Path, str | None]] = []
@@ -145,7 +148,9 @@ class _Walk:
                     if suffix in VIDEO_SUFFIXES:
                         files.append((path, f"{path}: {_cause(exc)}"))
                     elif not side:
-                        self.out.problems.append(PathProblem(str(path), f"{path}: skipped: {_cause(exc)}", failed=False))
+                        self.out.problems.append(
+                            PathProblem(str(path), f"{path}: skipped: {_cause(exc)}", failed=False)
+                        )
                     continue
                 if stat.S_ISDIR(st.st_mode):
                     subfolders.append(path)
@@ -154,7 +159,9 @@ class _Walk:
                 elif suffix in VIDEO_SUFFIXES:
                     files.append((path, f"{path}: not a regular file"))
                 elif not side:
-                    self.out.problems.append(PathProblem(str(path), f"{path}: skipped: not a regular file", failed=False))
+                    self.out.problems.append(
+                        PathProblem(str(path), f"{path}: skipped: not a regular file", failed=False)
+                    )
             descend: list[Path] = []
             for sub in subfolders:
                 ident = _stat_identity(sub)
@@ -163,14 +170,23 @@ class _Walk:
                 if ident in self.excluded:
                     continue  # the output folder: never an input (not worth a line)
                 if ident in self.seen:
-                    self.out.problems.append(PathProblem(
-                        str(sub), f"{sub}: skipped: the same folder as {self.seen[ident]} (a link), searched once",
-                        failed=False))
+                    self.out.problems.append(
+                        PathProblem(
+                            str(sub),
+                            f"{sub}: skipped: the same folder as {self.seen[ident]} (a link), searched once",
+                            failed=False,
+                        )
+                    )
                     continue
                 self.seen[ident] = sub
                 if os.path.lexists(sub / OUTPUT_MARKER):
-                    self.out.problems.append(PathProblem(
-                        str(sub), f"{sub}: skipped: a colonlight output folder (it holds {OUTPUT_MARKER})", failed=False))
+                    self.out.problems.append(
+                        PathProblem(
+                            str(sub),
+                            f"{sub}: skipped: a colonlight output folder (it holds {OUTPUT_MARKER})",
+                            failed=False,
+                        )
+                    )
                     continue
                 if is_synthetic_folder(sub):
                     source, problem = synthetic_clip(sub)  # one clip, named by its folder: do not descend
@@ -231,7 +247,8 @@ def discover(
         found = [
             (src, rel, problem)
             for src, rel, problem in found
-            if fnmatch.fnmatch(src.name, pattern) or fnmatch.fnmatch(rel.as_posix(), pattern)
+            if fnmatch.fnmatch(src.name, pattern)
+            or fnmatch.fnmatch(rel.as_posix(), pattern)
             or fnmatch.fnmatch((rel.parent / src.name).as_posix(), pattern)
         ]
     counts: dict[str, int] = {}
@@ -256,6 +273,16 @@ def discover_clips(inputs: Sequence[Path], out_root: Path, pattern: str | None =
 
 
 __all__ = [
-    "OUTPUT_MARKER", "SYNTH_CLIP_SOURCES", "SYNTH_MARKER", "VIDEO_SUFFIXES", "ClipJob", "Discovery", "PathProblem",
-    "discover", "discover_clips", "is_synthetic_folder", "synthetic_clip", "synthetic_folder_of",
+    "OUTPUT_MARKER",
+    "SYNTH_CLIP_SOURCES",
+    "SYNTH_MARKER",
+    "VIDEO_SUFFIXES",
+    "ClipJob",
+    "Discovery",
+    "PathProblem",
+    "discover",
+    "discover_clips",
+    "is_synthetic_folder",
+    "synthetic_clip",
+    "synthetic_folder_of",
 ]

@@ -22,8 +22,7 @@ import numpy as np
 
 from .atomic import write_bytes_atomic
 from .errors import FrameTooLargeError, InputError
-from .limits import max_pixels_setting
-from .limits import DEFAULT_FPS
+from .limits import DEFAULT_FPS, max_pixels_setting
 from .video import DecodedFrame, is_video
 
 IMAGE_SUFFIXES: frozenset[str] = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"})

@@ -110,7 +110,9 @@ def _is_under(path: str | os.PathLike[str] | None, folder: Path) -> bool:
     if path is None:
         return False
     try:
-        return os.path.commonpath([os.path.abspath(os.fsdecode(path)), os.path.abspath(folder)]) == os.path.abspath(folder)
+        return os.path.commonpath([os.path.abspath(os.fsdecode(path)), os.path.abspath(folder)]) == os.path.abspath(
+            folder
+        )
     except ValueError:
         return False
 
@@ -181,8 +183,9 @@ def run_clip(
     t0 = time.perf_counter()
 
     def failed(error: str, detail: str | None = None) -> ClipOutcome:
-        return ClipOutcome(job.name, str(job.source), "failed", seconds=time.perf_counter() - t0, error=error,
-                           detail=detail)
+        return ClipOutcome(
+            job.name, str(job.source), "failed", seconds=time.perf_counter() - t0, error=error, detail=detail
+        )
 
     def frame_done(n: int) -> None:
         if on_frame is not None:
@@ -197,8 +200,15 @@ def run_clip(
         built = method if isinstance(method, Method) else method_for(method)
         record = None if overwrite else complete_record(job.out_dir, built, opts)
         if record is not None:
-            return ClipOutcome(job.name, str(job.source), "done", frames=record.get("frame_count", 0), skipped=True,
-                               truncated=bool(record.get("truncated")), warnings=tuple(record.get("warnings", ())))
+            return ClipOutcome(
+                job.name,
+                str(job.source),
+                "done",
+                frames=record.get("frame_count", 0),
+                skipped=True,
+                truncated=bool(record.get("truncated")),
+                warnings=tuple(record.get("warnings", ())),
+            )
         if progress:
             started = True
             progress("start", job.name, {"total": estimate_frames(job.source, opts.fps)})
@@ -210,8 +220,15 @@ def run_clip(
             clip_name=job.name,
             on_frame=frame_done if progress or on_frame else None,
         )
-        return ClipOutcome(job.name, str(job.source), "done", frames=result.frames, seconds=result.seconds,
-                           truncated=result.truncated, warnings=result.warnings)
+        return ClipOutcome(
+            job.name,
+            str(job.source),
+            "done",
+            frames=result.frames,
+            seconds=result.seconds,
+            truncated=result.truncated,
+            warnings=result.warnings,
+        )
     except Exception as exc:  # noqa: BLE001 - a bug must not stop the batch; it is reported with its traceback
         return failed(*wording(job, exc))
     finally:

@@ -126,8 +126,12 @@ def clip_lighting(
     lin, lout = mean_luma(inputs, masks), mean_luma(outputs, masks)
     p_in = p_out = None
     if clean is not None:
-        p_in = psnr_from_mse(float(np.nanmean([mse(i, c, m) for i, c, m in zip(inputs[skip:], clean[skip:], masks[skip:])])))
-        p_out = psnr_from_mse(float(np.nanmean([mse(o, c, m) for o, c, m in zip(outputs[skip:], clean[skip:], masks[skip:])])))
+        p_in = psnr_from_mse(
+            float(np.nanmean([mse(i, c, m) for i, c, m in zip(inputs[skip:], clean[skip:], masks[skip:])]))
+        )
+        p_out = psnr_from_mse(
+            float(np.nanmean([mse(o, c, m) for o, c, m in zip(outputs[skip:], clean[skip:], masks[skip:])]))
+        )
     return ClipLighting(
         flicker_in=flicker(inputs, masks),
         flicker_out=flicker(outputs, masks),

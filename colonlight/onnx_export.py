@@ -46,18 +46,26 @@ def _check_frames(size: int, n: int = _CHECK_FRAMES, seed: int = 0) -> list[np.n
 
 
 def sidecar_record(
-    weights: LoadedWeights, sig: StepSignature, described: list[dict[str, Any]], onnx_file: str, onnx_sha256: str,
-    opset: int, check_max_diff: float | None,
+    weights: LoadedWeights,
+    sig: StepSignature,
+    described: list[dict[str, Any]],
+    onnx_file: str,
+    onnx_sha256: str,
+    opset: int,
+    check_max_diff: float | None,
 ) -> dict[str, Any]:
     """Everything a host needs around the graph (see the README's "C++ SLAM host" section)."""
     card = weights.card
     seeds = weights.seed_frames if weights.seed_frames is not None else SEED_FRAMES
     gain_gamma = getattr(weights.net, "head", "gamma") == "gain-gamma" and sig.head_names == ("z",)
-    outputs = [
-        {**d, "shape": list(shape), "dtype": "float32"} for d, shape in zip(described, sig.head_shapes)
-    ] + [
-        {"name": f"{n}_out", "shape": list(s), "dtype": "float32", "meaning": f"the new state: feed it as '{n}' "
-         "with the next frame"} for n, s in zip(sig.state_names, sig.state_shapes)
+    outputs = [{**d, "shape": list(shape), "dtype": "float32"} for d, shape in zip(described, sig.head_shapes)] + [
+        {
+            "name": f"{n}_out",
+            "shape": list(s),
+            "dtype": "float32",
+            "meaning": f"the new state: feed it as '{n}' with the next frame",
+        }
+        for n, s in zip(sig.state_names, sig.state_shapes)
     ]
     return {
         "format": SIDECAR_FORMAT,
@@ -75,28 +83,38 @@ def sidecar_record(
         "input_size": sig.size,
         "inputs": [
             {
-                "name": "frame", "shape": list(sig.frame_shape), "dtype": "float32", "layout": "NCHW, channels R, G, B",
+                "name": "frame",
+                "shape": list(sig.frame_shape),
+                "dtype": "float32",
+                "layout": "NCHW, channels R, G, B",
                 "normalisation": "value / 255: uint8 0..255 -> float 0..1; no mean or std",
                 "resize": f"the full frame reduced to {sig.size}x{sig.size}: halved with a Gaussian pyramid "
-                          f"(cv::pyrDown) while its shorter side is at least {4 * sig.size}, then area-averaged "
-                          "(cv::resize, INTER_AREA); the aspect ratio is not kept",
+                f"(cv::pyrDown) while its shorter side is at least {4 * sig.size}, then area-averaged "
+                "(cv::resize, INTER_AREA); the aspect ratio is not kept",
             },
-            *({"name": n, "shape": list(s), "dtype": "float32", "initial": "zeros at the start of every clip or "
-               "stream, then the previous step's output"} for n, s in zip(sig.state_names, sig.state_shapes)),
+            *(
+                {
+                    "name": n,
+                    "shape": list(s),
+                    "dtype": "float32",
+                    "initial": "zeros at the start of every clip or stream, then the previous step's output",
+                }
+                for n, s in zip(sig.state_names, sig.state_shapes)
+            ),
         ],
         "outputs": outputs,
         "seed_frames": {
             "count": seeds,
             "rule": f"the first {seeds} frames of a clip run the step (they build the state) but are passed "
-                    "through unchanged (gamma 1.0)",
+            "through unchanged (gamma 1.0)",
         },
         "gamma": card.get("gamma") or _default_gamma_rule(sig, gain_gamma),
         "lut": {
             "build": f"lut[v] = round(255 * {'min(1, gain * (v / 255) ^ gamma)' if gain_gamma else '(v / 255) ^ gamma'})"
-                     " for v = 0..255, in double precision, rounding half to even (std::nearbyint in the default "
-                     "rounding mode), as uint8",
+            " for v = 0..255, in double precision, rounding half to even (std::nearbyint in the default "
+            "rounding mode), as uint8",
             "apply": "out = lut[in] for every sample of every channel of the full-resolution uint8 frame "
-                     "(cv::LUT); out = in ^ gamma on [0, 1] values, gamma < 1 brightens",
+            "(cv::LUT); out = in ^ gamma on [0, 1] values, gamma < 1 brightens",
         },
         "check": {
             "onnxruntime_vs_torch_max_abs_diff": check_max_diff,
@@ -113,11 +131,11 @@ def _default_gamma_rule(sig: StepSignature, gain_gamma: bool) -> dict[str, Any]:
         return {
             "from_output": "z",
             "formula": f"gamma = exp({LOG_GAMMA_SPAN} * tanh(z[0])), gain = exp({LOG_GAIN_SPAN} * tanh(z[1])); "
-                       "out = min(1, gain * in ^ gamma) on [0, 1] values",
+            "out = min(1, gain * in ^ gamma) on [0, 1] values",
             "range": [GAMMA_MIN, GAMMA_MAX],
             "gain_range": [GAIN_MIN, GAIN_MAX],
             "clamping": "gamma and gain are each clamped into their range; z not finite -> gain 1, gamma 1, frame "
-                        "unchanged",
+            "unchanged",
         }
     if "a" not in sig.head_names:
         return {"note": "the weights' card does not say how these outputs become a correction (its 'gamma' entry)"}
@@ -126,7 +144,7 @@ def _default_gamma_rule(sig: StepSignature, gain_gamma: bool) -> dict[str, Any]:
         "formula": "gamma = 1 / a",
         "range": [GAMMA_MIN, GAMMA_MAX],
         "clamping": f"gamma below {GAMMA_MIN} becomes {GAMMA_MIN}, above {GAMMA_MAX} becomes {GAMMA_MAX}; "
-                    "a not finite or a <= 0 (the ReLU's floor: no usable answer) -> gamma 1.0, frame unchanged",
+        "a not finite or a <= 0 (the ReLU's floor: no usable answer) -> gamma 1.0, frame unchanged",
     }
 
 

@@ -183,8 +183,13 @@ def export_model_bytes(weights: LoadedWeights, size: int) -> tuple[bytes, StepSi
     try:
         with _quiet_exporter():
             program = torch.onnx.export(
-                graph, example, input_names=sig.input_names, output_names=sig.output_names,
-                dynamo=True, external_data=False, verbose=False,
+                graph,
+                example,
+                input_names=sig.input_names,
+                output_names=sig.output_names,
+                dynamo=True,
+                external_data=False,
+                verbose=False,
             )
     except Exception as exc:  # noqa: BLE001 - torch's exporter raises many kinds; the user gets one line
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
@@ -206,12 +211,12 @@ def cpu_session(model: bytes | str | Path, threads: int = 1) -> Any:
     so.add_session_config_entry("session.intra_op.allow_spinning", "0")
     so.add_session_config_entry("session.inter_op.allow_spinning", "0")
     so.log_severity_level = 3
-    return ort.InferenceSession(model if isinstance(model, bytes) else str(model), so, providers=["CPUExecutionProvider"])
+    return ort.InferenceSession(
+        model if isinstance(model, bytes) else str(model), so, providers=["CPUExecutionProvider"]
+    )
 
 
-def compare_with_torch(
-    weights: LoadedWeights, session: Any, sig: StepSignature, frames: Sequence[np.ndarray]
-) -> float:
+def compare_with_torch(weights: LoadedWeights, session: Any, sig: StepSignature, frames: Sequence[np.ndarray]) -> float:
     """Run torch and the ONNX session side by side over ``frames`` (each ``(1, 3, S, S)`` float32 in [0, 1]),
     each carrying its own state from zero; return the largest absolute difference in any head output."""
     net = weights.net.cpu().eval()

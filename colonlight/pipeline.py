@@ -204,7 +204,9 @@ class _FrameSink:
     def __init__(self, out_dir: Path, opts: ClipOptions, fps: float) -> None:
         self.opts = opts
         self.frames_dir = out_dir / FRAMES_DIR
-        self.pool = ThreadPoolExecutor(max_workers=_WRITERS, thread_name_prefix="colonlight-write") if opts.frames else None
+        self.pool = (
+            ThreadPoolExecutor(max_workers=_WRITERS, thread_name_prefix="colonlight-write") if opts.frames else None
+        )
         self.pending: deque[tuple[Future[Path], Path]] = deque()  # (temporary being written, its destination)
         self.video = VideoWriter(out_dir / VIDEO_FILE, fps=fps) if opts.video else None
         self.count = 0
@@ -317,7 +319,11 @@ def _enhance_clip(
     stop = threading.Event()
     report = DecodeReport()
     frames = clip_frames(
-        source, fps=fps_out, folder_fps=opts.folder_fps, min_frames=MIN_FRAMES, max_pixels=opts.max_pixels,
+        source,
+        fps=fps_out,
+        folder_fps=opts.folder_fps,
+        min_frames=MIN_FRAMES,
+        max_pixels=opts.max_pixels,
         report=report,
     )
     decoded = _prefetch(frames, stop)
@@ -401,8 +407,12 @@ def _enhance_clip(
     gammas["frames"] = records
     write_json_atomic(out_dir / GAMMAS_FILE, gammas)
     return ClipResult(
-        clip=clip_name, out_dir=out_dir, frames=len(records), seconds=time.perf_counter() - t0,
-        truncated=report.truncated is not None, warnings=warnings,
+        clip=clip_name,
+        out_dir=out_dir,
+        frames=len(records),
+        seconds=time.perf_counter() - t0,
+        truncated=report.truncated is not None,
+        warnings=warnings,
     )
 
 
@@ -412,9 +422,7 @@ def _source_rate(head: list[DecodedFrame]) -> float:
     return 1.0 / dt if dt > 0 else DEFAULT_FPS
 
 
-def iter_enhanced(
-    frames: Iterator[np.ndarray], method: Method
-) -> Iterator[FrameResult]:
+def iter_enhanced(frames: Iterator[np.ndarray], method: Method) -> Iterator[FrameResult]:
     """Library convenience: enhance an iterable of RGB uint8 frames in order, yielding results as they are ready
     (:func:`colonlight.streaming.enhance_frames`, kept under this name)."""
     return enhance_frames(frames, method)

@@ -26,9 +26,11 @@ def library_versions() -> dict[str, str]:
     try:
         import av
 
-        out["ffmpeg (PyAV)"] = ".".join(str(x) for x in av.ffmpeg_version_info) if isinstance(
-            av.ffmpeg_version_info, tuple
-        ) else str(av.ffmpeg_version_info)
+        out["ffmpeg (PyAV)"] = (
+            ".".join(str(x) for x in av.ffmpeg_version_info)
+            if isinstance(av.ffmpeg_version_info, tuple)
+            else str(av.ffmpeg_version_info)
+        )
     except Exception:  # noqa: BLE001 - informational only
         pass
     return out

@@ -39,10 +39,20 @@ _DSO_OUTPUT_WORDS = ("crop", "full", "none")
 #: COLMAP's camera models: parameter count and whether they have one focal length (f) or two (fx, fy); in every
 #: one of them the parameters start with the focal length(s) followed by cx, cy.
 COLMAP_MODELS: dict[str, tuple[int, bool]] = {
-    "SIMPLE_PINHOLE": (3, True), "PINHOLE": (4, False), "SIMPLE_RADIAL": (4, True), "RADIAL": (5, True),
-    "OPENCV": (8, False), "OPENCV_FISHEYE": (8, False), "FULL_OPENCV": (12, False), "FOV": (5, False),
-    "SIMPLE_RADIAL_FISHEYE": (4, True), "RADIAL_FISHEYE": (5, True), "THIN_PRISM_FISHEYE": (12, False),
-    "RAD_TAN_THIN_PRISM_FISHEYE": (16, False), "SIMPLE_DIVISION": (4, True), "DIVISION": (5, False),
+    "SIMPLE_PINHOLE": (3, True),
+    "PINHOLE": (4, False),
+    "SIMPLE_RADIAL": (4, True),
+    "RADIAL": (5, True),
+    "OPENCV": (8, False),
+    "OPENCV_FISHEYE": (8, False),
+    "FULL_OPENCV": (12, False),
+    "FOV": (5, False),
+    "SIMPLE_RADIAL_FISHEYE": (4, True),
+    "RADIAL_FISHEYE": (5, True),
+    "THIN_PRISM_FISHEYE": (12, False),
+    "RAD_TAN_THIN_PRISM_FISHEYE": (16, False),
+    "SIMPLE_DIVISION": (4, True),
+    "DIVISION": (5, False),
 }
 
 Size = tuple[int, int]  # (width, height)
@@ -104,7 +114,9 @@ def _dso_model(line: str) -> tuple[str, str, list[float]]:
 
 def _parse_dso(lines: list[str]) -> tuple[Size, ...]:
     if len(lines) < 4:
-        raise ValueError(f"a DSO camera file has 4 lines (model, input size, crop/full/none, output size); got {len(lines)}")
+        raise ValueError(
+            f"a DSO camera file has 4 lines (model, input size, crop/full/none, output size); got {len(lines)}"
+        )
     _dso_model(lines[0])
     in_size = _size(lines[1], "line 2 (input size)")
     third = lines[2].strip()
@@ -199,8 +211,9 @@ def _rescale_colmap(cam: CameraFile, to: Size) -> str:
         p = [float(t) for t in tokens[4:]]
         if COLMAP_MODELS[model][1]:  # one focal length: as COLMAP's Camera::Rescale, the mean of the two scales
             if abs(sx - sy) > _ASPECT_TOLERANCE * max(sx, sy):
-                raise InputError(f"{cam.name}: {model} has one focal length; {w0}x{h0} -> {to[0]}x{to[1]} "
-                                 "changes the aspect ratio")
+                raise InputError(
+                    f"{cam.name}: {model} has one focal length; {w0}x{h0} -> {to[0]}x{to[1]} changes the aspect ratio"
+                )
             p[0], p[1], p[2] = p[0] * (sx + sy) / 2, p[1] * sx, p[2] * sy
         else:  # COLMAP's pixel centres are at +0.5, so focal lengths and the principal point scale alike
             p[0], p[1], p[2], p[3] = p[0] * sx, p[1] * sy, p[2] * sx, p[3] * sy

@@ -32,10 +32,10 @@ from safetensors.torch import load_file, save_file
 
 from .atomic import atomic_path, write_json_atomic
 from .checkpoint import load_weights, save_weights
+from .correction import apply_gain_gamma, gain_gamma_from_raw
 from .errors import InputError
 from .limits import DEFAULT_FPS
 from .methods.rnn import DEFAULT_MODEL_SIZE
-from .correction import apply_gain_gamma, gain_gamma_from_raw
 from .model import HEAD_OUTPUTS, GammaNet, correct, parameter_count
 from .sources import clip_frames
 
@@ -304,7 +304,12 @@ def _save_state(path: Path, net: GammaNet, opt: torch.optim.Optimizer, epoch: in
     """Resumable training state: tensors in safetensors, the rest in JSON (nothing pickled)."""
     tensors = {f"model.{k}": v.detach().contiguous() for k, v in net.state_dict().items()}
     opt_state = opt.state_dict()
-    meta: dict[str, Any] = {"epoch": epoch, "history": [asdict(h) for h in history], "param_groups": opt_state["param_groups"], "steps": {}}
+    meta: dict[str, Any] = {
+        "epoch": epoch,
+        "history": [asdict(h) for h in history],
+        "param_groups": opt_state["param_groups"],
+        "steps": {},
+    }
     for pid, st in opt_state["state"].items():
         for key, val in st.items():
             if key == "step":

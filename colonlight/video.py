@@ -41,7 +41,7 @@ log = logging.getLogger(__name__)
 
 #: Suffixes that usually name videos. Advisory only (e.g. to report a misnamed file): detection is by content.
 VIDEO_SUFFIXES = frozenset(
-    ".mp4 .m4v .mov .avi .mkv .mpg .mpeg .ts .mts .m2ts .webm .wmv .flv .3gp .ogv .vob .mxf .h264".split()
+    [".mp4", ".m4v", ".mov", ".avi", ".mkv", ".mpg", ".mpeg", ".ts", ".mts", ".m2ts", ".webm", ".wmv", ".flv", ".3gp", ".ogv", ".vob", ".mxf", ".h264"]
 )
 
 # Demuxers that open still images, animations or text as a "video" stream: such files are not clips.
@@ -106,8 +106,10 @@ class DecodeReport:
         if self.damaged:
             out.append(f"{self.damaged} damaged packets/frames were decoded with errors concealed")
         if self.discontinuities:
-            out.append(f"{self.discontinuities} timestamp discontinuities (joined or restarted recording) were "
-                       "bridged as ffmpeg bridges them")
+            out.append(
+                f"{self.discontinuities} timestamp discontinuities (joined or restarted recording) were "
+                "bridged as ffmpeg bridges them"
+            )
         return out
 
 
@@ -527,8 +529,11 @@ def _open_container(path: Path, options: dict[str, str]) -> tuple[Any, Any]:
             raise _error(path, "truncated or unfinished MP4/MOV: its index ('moov') is missing") from exc
         end, size = _declared_end(path), _file_size(path)
         if isinstance(exc, av.error.InvalidDataError) and end is not None and size is not None and end > size:
-            raise _error(path, f"truncated video: the file ends at byte {size} but its container says it ends "
-                               f"at byte {end}, before any frame could be read") from exc
+            raise _error(
+                path,
+                f"truncated video: the file ends at byte {size} but its container says it ends "
+                f"at byte {end}, before any frame could be read",
+            ) from exc
         raise _error(path, _cause(exc, opening=True)) from exc
     try:
         fmt = container.format.name

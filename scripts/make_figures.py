@@ -27,8 +27,9 @@ SEED = 20210628
 
 
 def main() -> None:
-    cfg = SynthConfig.sample(np.random.default_rng(SEED), split="heldout", width=320, height=256, n_frames=90,
-                             undisturbed_seeds=True)
+    cfg = SynthConfig.sample(
+        np.random.default_rng(SEED), split="heldout", width=320, height=256, n_frames=90, undisturbed_seeds=True
+    )
     frames = list(generate_clip(cfg, seed=SEED))
     images = [f.image for f in frames]
     results = list(iter_enhanced(iter(images), create_method("rnn", device="cpu")))
@@ -36,8 +37,11 @@ def main() -> None:
     gammas = [r.gamma for r in results]
 
     picks = np.linspace(4, len(images) - 1, 6).astype(int)
-    rows = [np.hstack([images[i] for i in picks]), np.hstack([enhanced[i] for i in picks]),
-            np.hstack([frames[i].clean for i in picks])]
+    rows = [
+        np.hstack([images[i] for i in picks]),
+        np.hstack([enhanced[i] for i in picks]),
+        np.hstack([frames[i].clean for i in picks]),
+    ]
     labels = ["as recorded", "enhanced (colonlight)", "clean (fixed exposure)"]
     strip = []
     for label, row in zip(labels, rows):

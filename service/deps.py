@@ -50,9 +50,12 @@ def require_api_key(
     """401 unless the request carries the server's key (when one is set) as X-API-Key or a Bearer token."""
     if key_is_valid(settings, api_key, bearer.credentials if bearer is not None else None):
         return
-    raise ApiError(401, "unauthorized",
-                   "this server requires an API key: send it as an X-API-Key header or as Authorization: Bearer <key>",
-                   {"WWW-Authenticate": "Bearer", "Connection": "close"})  # close: never read a refused upload
+    raise ApiError(
+        401,
+        "unauthorized",
+        "this server requires an API key: send it as an X-API-Key header or as Authorization: Bearer <key>",
+        {"WWW-Authenticate": "Bearer", "Connection": "close"},
+    )  # close: never read a refused upload
 
 
 Authenticated = Depends(require_api_key)

@@ -44,8 +44,11 @@ class ErrorBody(BaseModel):
     model_config = {
         "json_schema_extra": {
             "examples": [
-                {"status": 415, "code": "unsupported_media_type",
-                 "message": "clip.mp4 is not a video: the content is not a recognised video format"}
+                {
+                    "status": 415,
+                    "code": "unsupported_media_type",
+                    "message": "clip.mp4 is not a video: the content is not a recognised video format",
+                }
             ]
         }
     }
@@ -74,7 +77,8 @@ def is_disk_full(exc: BaseException | None) -> bool:
         if isinstance(exc, OSError) and exc.errno in _DISK_FULL_ERRNOS:
             return True
         if isinstance(exc, sqlite3.Error) and (
-                getattr(exc, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL or "disk is full" in str(exc)):
+            getattr(exc, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL or "disk is full" in str(exc)
+        ):
             return True
         exc = exc.__cause__ or exc.__context__
     return False
@@ -82,9 +86,12 @@ def is_disk_full(exc: BaseException | None) -> bool:
 
 def storage_full() -> ApiError:
     """507 for a request that needed space in the data folder and found none (nothing of it is kept)."""
-    return ApiError(507, "insufficient_storage",
-                    "the server's data folder is full; nothing of this request was kept, retry later",
-                    {"Retry-After": "60", "Connection": "close"})
+    return ApiError(
+        507,
+        "insufficient_storage",
+        "the server's data folder is full; nothing of this request was kept, retry later",
+        {"Retry-After": "60", "Connection": "close"},
+    )
 
 
 def _code_for(status: int) -> str:
@@ -94,8 +101,13 @@ def _code_for(status: int) -> str:
         return "error"
 
 
-def error_response(status: int, code: str, message: str, headers: Mapping[str, str] | None = None,
-                   details: list[dict[str, Any]] | None = None) -> JSONResponse:
+def error_response(
+    status: int,
+    code: str,
+    message: str,
+    headers: Mapping[str, str] | None = None,
+    details: list[dict[str, Any]] | None = None,
+) -> JSONResponse:
     body: dict[str, Any] = {"status": status, "code": code, "message": message}
     if details is not None:
         body["details"] = details
@@ -111,7 +123,9 @@ def _validation_details(exc: RequestValidationError) -> list[dict[str, Any]]:
     details = []
     for err in exc.errors():
         loc = [p if isinstance(p, int) else _safe_text(p, 100) for p in err.get("loc", ())]
-        details.append({"loc": loc, "msg": _safe_text(err.get("msg", "invalid value")), "type": str(err.get("type", ""))})
+        details.append(
+            {"loc": loc, "msg": _safe_text(err.get("msg", "invalid value")), "type": str(err.get("type", ""))}
+        )
     return details
 
 
@@ -186,11 +200,19 @@ class JsonErrorGuard:
                 assert start is not None
                 status = start["status"]
                 text = body.decode("utf-8", "replace").strip() or HTTPStatus(status).phrase
-                payload = json.dumps({"status": status, "code": _code_for(status), "message": _safe_text(text)}).encode()
-                keep = [(k, v) for k, v in start.get("headers", [])
-                        if k.lower() not in (b"content-type", b"content-length")]
-                await send({**start, "headers": keep + [(b"content-type", b"application/json"),
-                                                        (b"content-length", str(len(payload)).encode())]})
+                payload = json.dumps(
+                    {"status": status, "code": _code_for(status), "message": _safe_text(text)}
+                ).encode()
+                keep = [
+                    (k, v) for k, v in start.get("headers", []) if k.lower() not in (b"content-type", b"content-length")
+                ]
+                await send(
+                    {
+                        **start,
+                        "headers": keep
+                        + [(b"content-type", b"application/json"), (b"content-length", str(len(payload)).encode())],
+                    }
+                )
                 await send({"type": "http.response.body", "body": payload})
                 return
             await send(message)

@@ -48,11 +48,15 @@ def declared_frame_size(path: Path, max_pixels: int) -> tuple[int, int] | None:
 
 def _video_sizes(path: Path, max_pixels: int) -> list[tuple[int, int]]:
     try:
-        container: Any = av.open(str(path), mode="r", metadata_errors="replace",
-                                 options={"max_pixels": str(max_pixels)})
+        container: Any = av.open(
+            str(path), mode="r", metadata_errors="replace", options={"max_pixels": str(max_pixels)}
+        )
     except (av.error.FFmpegError, OSError, UnicodeError, ValueError):
         return []
     attached = av.stream.Disposition.attached_pic  # cover art, not frames of the clip
     with container:
-        return [(int(s.codec_context.width or 0), int(s.codec_context.height or 0))
-                for s in container.streams.video if s.codec_context is not None and not s.disposition & attached]
+        return [
+            (int(s.codec_context.width or 0), int(s.codec_context.height or 0))
+            for s in container.streams.video
+            if s.codec_context is not None and not s.disposition & attached
+        ]

@@ -38,8 +38,8 @@ from typing import Any
 
 import anyio
 
-from colonlight.atomic import write_json_atomic
 from colonlight import ClipJob, ClipOptions, ClipOutcome, ColonlightError, MethodSpec, estimate_frames
+from colonlight.atomic import write_json_atomic
 from colonlight.limits import MAX_FPS, available_cores
 from colonlight.pipeline import GAMMAS_FILE, VIDEO_FILE
 from colonlight.video import VideoInfo, probe_video
@@ -145,13 +145,20 @@ class JobManager:
 
     def resolved(self, o: JobOptions) -> JobOptions:
         """``o`` with the server's defaults filled in (what the job records and runs with)."""
-        return o.model_copy(update={"fps": self.settings.fps if o.fps is None else o.fps,
-                                    "method": o.method or self.settings.method})
+        return o.model_copy(
+            update={"fps": self.settings.fps if o.fps is None else o.fps, "method": o.method or self.settings.method}
+        )
 
     def clip_options(self, o: JobOptions, frames: bool | None = None) -> ClipOptions:
         fps = self.settings.fps if o.fps is None else o.fps
-        return ClipOptions(fps=fps or None, frames=o.frames if frames is None else frames, video=True,
-                           format=o.format, quality=o.quality, content=o.content)
+        return ClipOptions(
+            fps=fps or None,
+            frames=o.frames if frames is None else frames,
+            video=True,
+            format=o.format,
+            quality=o.quality,
+            content=o.content,
+        )
 
     async def check_method(self, spec: MethodSpec) -> None:
         """Build (and cache) the method for ``spec`` now, so that bad options are a 422, not a failed job."""
@@ -177,8 +184,11 @@ class JobManager:
             if d.name not in known:
                 _remove(d)  # a job folder whose row is gone (deleted while the process died)
         try:
-            self.runner = (ClusterRunner(self.settings.cluster, self.settings.workers) if self.settings.cluster
-                           else LocalRunner(self.settings.workers, self.methods))
+            self.runner = (
+                ClusterRunner(self.settings.cluster, self.settings.workers)
+                if self.settings.cluster
+                else LocalRunner(self.settings.workers, self.methods)
+            )
         except ColonlightError as exc:  # e.g. the scheduler is unreachable: reported by /readyz, submissions get 503
             self.model_state, self.model_message = "failed", str(exc)
             log.error("%s", exc)
@@ -244,9 +254,12 @@ class JobManager:
         if self._admitted >= self.settings.capacity:
             self.metrics.inc("rejected", "queue_full")
             return ApiError(
-                503, "queue_full",
+                503,
+                "queue_full",
                 f"all {self.settings.workers} workers are busy and the queue of {self.settings.queue_size} is full; "
-                f"retry in {self.settings.retry_after_seconds} s", retry)
+                f"retry in {self.settings.retry_after_seconds} s",
+                retry,
+            )
         return None
 
     @contextmanager
@@ -261,10 +274,12 @@ class JobManager:
             if refusal is None and self._uploading >= self.settings.max_uploads:
                 self.metrics.inc("rejected", "too_many_uploads")
                 refusal = ApiError(
-                    503, "too_many_uploads",
+                    503,
+                    "too_many_uploads",
                     f"{self.settings.max_uploads} uploads are being received already (COLONLIGHT_MAX_UPLOADS); "
                     f"retry in {self.settings.retry_after_seconds} s",
-                    {"Retry-After": str(self.settings.retry_after_seconds), **CLOSE})
+                    {"Retry-After": str(self.settings.retry_after_seconds), **CLOSE},
+                )
             if refusal is not None:
                 raise refusal
             self._uploading += 1
@@ -319,9 +334,12 @@ class JobManager:
         cap = self.settings.max_pixels
         if width * height > cap:
             self.metrics.inc("rejected", "too_many_pixels")
-            raise ApiError(413, "frame_too_large",
-                           f"{upload.filename}: its frames are {width}x{height} ({width * height} pixels), over this "
-                           f"server's limit of {cap} pixels a frame (COLONLIGHT_MAX_PIXELS)")
+            raise ApiError(
+                413,
+                "frame_too_large",
+                f"{upload.filename}: its frames are {width}x{height} ({width * height} pixels), over this "
+                f"server's limit of {cap} pixels a frame (COLONLIGHT_MAX_PIXELS)",
+            )
 
     # ------------------------------------------------------------------------------------------ jobs
 
@@ -342,9 +360,16 @@ class JobManager:
 
         try:
             total = await anyio.to_thread.run_sync(place, limiter=self._probe_limiter)
-            rec = JobRecord(id=job_id, status="queued", filename=upload.filename, input_name=input_name,
-                            input_bytes=upload.size, options=opts.model_dump(), created_at=time.time(),
-                            frames_total=total)
+            rec = JobRecord(
+                id=job_id,
+                status="queued",
+                filename=upload.filename,
+                input_name=input_name,
+                input_bytes=upload.size,
+                options=opts.model_dump(),
+                created_at=time.time(),
+                frames_total=total,
+            )
             await asyncio.to_thread(self.store.insert, rec)
         except BaseException as exc:
             await asyncio.to_thread(_remove, job_dir)
@@ -360,7 +385,9 @@ class JobManager:
         assert self.runner is not None and self.store is not None
         options = JobOptions(**rec.options)
         job_dir = self.job_dir(rec.id)
-        job = ClipJob(source=job_dir / rec.input_name, name=Path(rec.filename).stem or "upload", out_dir=job_dir / "out")
+        job = ClipJob(
+            source=job_dir / rec.input_name, name=Path(rec.filename).stem or "upload", out_dir=job_dir / "out"
+        )
         store, job_id = self.store, rec.id
         hooks = ClipHooks()
         last_flush = [0.0]
@@ -417,8 +444,13 @@ class JobManager:
             outcome = None  # shut down before it started: still 'queued' on disk, resumed at the next start
         except Exception as exc:  # noqa: BLE001 - e.g. the cluster lost the task, or the job table had no room
             full = is_disk_full(exc)
-            outcome = ClipOutcome(job.name, str(job.source), "failed", detail=DISK_FULL if full else None,
-                                  error=NO_SPACE if full else f"worker failed: {exc}")
+            outcome = ClipOutcome(
+                job.name,
+                str(job.source),
+                "failed",
+                detail=DISK_FULL if full else None,
+                error=NO_SPACE if full else f"worker failed: {exc}",
+            )
         if outcome is None:
             return
         if not was_running and hooks.stop_reason != "deleted" and self._stopping:
@@ -431,8 +463,15 @@ class JobManager:
             outcome = self._label_source(outcome, job, rec.filename)
         try:
             if outcome.status == "done":
-                ok = self.store.update(job_id, status="succeeded", finished_at=now, frames_done=outcome.frames,
-                                       frames_total=outcome.frames, seconds=outcome.seconds, error=None)
+                ok = self.store.update(
+                    job_id,
+                    status="succeeded",
+                    finished_at=now,
+                    frames_done=outcome.frames,
+                    frames_total=outcome.frames,
+                    seconds=outcome.seconds,
+                    error=None,
+                )
                 self.metrics.observe_job("succeeded", outcome.seconds)
             else:
                 message = self.scrub(outcome.error or "failed", job.source, rec.filename)
@@ -462,9 +501,14 @@ class JobManager:
         except (OSError, ValueError) as exc:
             gammas.unlink(missing_ok=True)
             full = is_disk_full(exc)
-            return ClipOutcome(outcome.clip, outcome.source, "failed", seconds=outcome.seconds,
-                               error=NO_SPACE if full else f"its results could not be completed: {exc}",
-                               detail=DISK_FULL if full else None)
+            return ClipOutcome(
+                outcome.clip,
+                outcome.source,
+                "failed",
+                seconds=outcome.seconds,
+                error=NO_SPACE if full else f"its results could not be completed: {exc}",
+                detail=DISK_FULL if full else None,
+            )
         return outcome
 
     def _fail(self, rec: JobRecord, message: str, seconds: float | None = None) -> bool:
@@ -517,11 +561,14 @@ class JobManager:
 
     # ------------------------------------------------------------------------------------------ sync
 
-    async def enhance_now(self, admission: Admission, upload: Upload, options: JobOptions, info: VideoInfo) -> dict[str, Any]:
+    async def enhance_now(
+        self, admission: Admission, upload: Upload, options: JobOptions, info: VideoInfo
+    ) -> dict[str, Any]:
         """Run a short clip through the same runner and return ``{"gammas": ..., "video": ...}``."""
         limit = self.settings.sync_max_seconds
         too_long = ApiError(
-            413, "clip_too_long",
+            413,
+            "clip_too_long",
             f"{upload.filename} is longer than {limit:g} s, the limit of POST /v1/enhance "
             "(COLONLIGHT_SYNC_MAX_SECONDS); submit it to POST /v1/jobs and poll GET /v1/jobs/{id} instead",
         )
@@ -534,8 +581,11 @@ class JobManager:
         max_frames = math.ceil(limit * rate) + 2
         token = "sync-" + secrets.token_hex(8)
         work = self.sync_dir / token
-        job = ClipJob(source=work / ("input" + safe_suffix(upload.filename)), name=Path(upload.filename).stem or "upload",
-                      out_dir=work / "out")
+        job = ClipJob(
+            source=work / ("input" + safe_suffix(upload.filename)),
+            name=Path(upload.filename).stem or "upload",
+            out_dir=work / "out",
+        )
         await asyncio.to_thread(lambda: (work.mkdir(parents=True), os.replace(upload.path, job.source)))
         hooks = ClipHooks()
         over = [False]
@@ -585,15 +635,24 @@ class JobManager:
                 raise storage_full()
             if outcome.status != "done":
                 self.metrics.inc("sync_requests", "failed")
-                raise ApiError(422, "unprocessable_clip", self.scrub(outcome.error or "failed", job.source, upload.filename))
+                raise ApiError(
+                    422, "unprocessable_clip", self.scrub(outcome.error or "failed", job.source, upload.filename)
+                )
             self.metrics.observe_job("succeeded", outcome.seconds)
 
             def read() -> dict[str, Any]:
                 gammas = json.loads((job.out_dir / GAMMAS_FILE).read_text(encoding="utf-8"))
                 gammas["source"] = upload.filename  # the upload's label, not the server's path
                 video = (job.out_dir / VIDEO_FILE).read_bytes()
-                return {"gammas": gammas, "video": {"media_type": "video/mp4", "encoding": "base64",
-                                                    "size_bytes": len(video), "data": base64.b64encode(video).decode()}}
+                return {
+                    "gammas": gammas,
+                    "video": {
+                        "media_type": "video/mp4",
+                        "encoding": "base64",
+                        "size_bytes": len(video),
+                        "data": base64.b64encode(video).decode(),
+                    },
+                }
 
             result = await asyncio.to_thread(read)
             self.metrics.inc("sync_requests", "ok")

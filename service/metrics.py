@@ -39,13 +39,16 @@ class Metrics:
         r = self.registry
         self.submitted = Counter("colonlight_jobs_submitted_total", "Jobs accepted by POST /v1/jobs.", registry=r)
         self.finished = Counter("colonlight_jobs_finished_total", "Jobs finished, by outcome.", ["status"], registry=r)
-        self.sync_requests = Counter("colonlight_sync_requests_total", "POST /v1/enhance requests by outcome.",
-                                     ["outcome"], registry=r)
-        self.rejected = Counter("colonlight_requests_rejected_total", "Uploads refused, by reason.", ["reason"],
-                                registry=r)
+        self.sync_requests = Counter(
+            "colonlight_sync_requests_total", "POST /v1/enhance requests by outcome.", ["outcome"], registry=r
+        )
+        self.rejected = Counter(
+            "colonlight_requests_rejected_total", "Uploads refused, by reason.", ["reason"], registry=r
+        )
         self.frames = Counter("colonlight_frames_processed_total", "Enhanced frames written.", registry=r)
-        self.seconds = Histogram("colonlight_processing_seconds", "Wall time of finished clips.", buckets=BUCKETS,
-                                 registry=r)
+        self.seconds = Histogram(
+            "colonlight_processing_seconds", "Wall time of finished clips.", buckets=BUCKETS, registry=r
+        )
         # the samples a scrape shows before anything happened (as the hand-written text did)
         self.finished.labels("succeeded")
         self.sync_requests.labels("ok")
@@ -60,11 +63,26 @@ class Metrics:
         self.finished.labels(status).inc()
         self.seconds.observe(seconds)
 
-    def render(self, jobs_by_status: dict[str, int], queue_depth: int, running: int, workers: int,
-               admitted: int, capacity: int, ready: bool) -> str:
+    def render(
+        self,
+        jobs_by_status: dict[str, int],
+        queue_depth: int,
+        running: int,
+        workers: int,
+        admitted: int,
+        capacity: int,
+        ready: bool,
+    ) -> str:
         with self._lock:
-            self._live.update(jobs=jobs_by_status, queue_depth=queue_depth, running=running, workers=workers,
-                              admitted=admitted, capacity=capacity, ready=ready)
+            self._live.update(
+                jobs=jobs_by_status,
+                queue_depth=queue_depth,
+                running=running,
+                workers=workers,
+                admitted=admitted,
+                capacity=capacity,
+                ready=ready,
+            )
             if os.environ.get(MULTIPROC_ENV):  # the counters of every worker process, summed
                 registry = CollectorRegistry()
                 multiprocess.MultiProcessCollector(registry)
@@ -99,8 +117,9 @@ class _LiveGauges(Collector):
             yield GaugeMetricFamily(name, help_text, value=int(live[key]))
         rss, peak = memory_bytes()
         yield GaugeMetricFamily("process_resident_memory_bytes", "Resident memory of the server process.", value=rss)
-        yield GaugeMetricFamily("process_peak_resident_memory_bytes", "Peak resident memory of the server process.",
-                                value=peak)
+        yield GaugeMetricFamily(
+            "process_peak_resident_memory_bytes", "Peak resident memory of the server process.", value=peak
+        )
 
 
 def memory_bytes() -> tuple[int, int]:

@@ -22,14 +22,25 @@ class JobOptions(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    fps: float | None = Field(None, ge=0, le=int(MAX_FPS), description=f"Extraction rate; 0 keeps every frame (default: the server's, {DEFAULT_FPS:g}).")
+    fps: float | None = Field(
+        None,
+        ge=0,
+        le=int(MAX_FPS),
+        description=f"Extraction rate; 0 keeps every frame (default: the server's, {DEFAULT_FPS:g}).",
+    )
     method: str | None = Field(None, description="Enhancement method (default: the server's, rnn).")
-    model_size: str | None = Field(None, description="rnn only: network input side in pixels (8..1024) or 'full'; default: the size the weights were trained at (48 for the shipped model).")
+    model_size: str | None = Field(
+        None,
+        description="rnn only: network input side in pixels (8..1024) or 'full'; default: the size the weights were trained at (48 for the shipped model).",
+    )
     gamma: float | None = Field(None, gt=0, le=10, description="method=gamma only: the exponent (out = in ** gamma).")
     format: Literal["png", "jpg"] = Field("png", description="Format of the enhanced frames (the zip).")
     quality: int = Field(95, ge=1, le=100, description="JPEG quality.")
     frames: bool = Field(True, description="Also write the enhanced frames (downloadable as a zip).")
-    content: Literal["auto", "full"] = Field("auto", description="auto: the method sees only the field of view inside a black border, less fixed on-screen text; border and text pixels are written unchanged. full: the whole frame.")
+    content: Literal["auto", "full"] = Field(
+        "auto",
+        description="auto: the method sees only the field of view inside a black border, less fixed on-screen text; border and text pixels are written unchanged. full: the whole frame.",
+    )
 
     @field_validator("*", mode="before")
     @classmethod
@@ -59,15 +70,56 @@ class JobOptions(BaseModel):
 #: OpenAPI description of the multipart body of POST /v1/jobs and POST /v1/enhance (parsed by hand, streamed).
 def upload_request_body(description: str) -> dict[str, Any]:
     props: dict[str, Any] = {
-        "file": {"type": "string", "format": "binary", "description": "The clip: any video FFmpeg decodes (mp4, mov, avi, mkv, ...)."},
-        "fps": {"type": "number", "minimum": 0, "maximum": int(MAX_FPS), "description": JobOptions.model_fields["fps"].description, "example": int(DEFAULT_FPS)},
-        "method": {"type": "string", "enum": METHODS, "description": JobOptions.model_fields["method"].description, "example": "rnn"},
-        "model_size": {"type": "string", "pattern": "^(full|[0-9]{1,4})$", "description": JobOptions.model_fields["model_size"].description, "example": "64"},
-        "gamma": {"type": "number", "exclusiveMinimum": 0, "maximum": 10, "description": JobOptions.model_fields["gamma"].description},
-        "format": {"type": "string", "enum": ["png", "jpg"], "default": "png", "description": JobOptions.model_fields["format"].description},
-        "quality": {"type": "integer", "minimum": 1, "maximum": 100, "default": 95, "description": JobOptions.model_fields["quality"].description},
+        "file": {
+            "type": "string",
+            "format": "binary",
+            "description": "The clip: any video FFmpeg decodes (mp4, mov, avi, mkv, ...).",
+        },
+        "fps": {
+            "type": "number",
+            "minimum": 0,
+            "maximum": int(MAX_FPS),
+            "description": JobOptions.model_fields["fps"].description,
+            "example": int(DEFAULT_FPS),
+        },
+        "method": {
+            "type": "string",
+            "enum": METHODS,
+            "description": JobOptions.model_fields["method"].description,
+            "example": "rnn",
+        },
+        "model_size": {
+            "type": "string",
+            "pattern": "^(full|[0-9]{1,4})$",
+            "description": JobOptions.model_fields["model_size"].description,
+            "example": "64",
+        },
+        "gamma": {
+            "type": "number",
+            "exclusiveMinimum": 0,
+            "maximum": 10,
+            "description": JobOptions.model_fields["gamma"].description,
+        },
+        "format": {
+            "type": "string",
+            "enum": ["png", "jpg"],
+            "default": "png",
+            "description": JobOptions.model_fields["format"].description,
+        },
+        "quality": {
+            "type": "integer",
+            "minimum": 1,
+            "maximum": 100,
+            "default": 95,
+            "description": JobOptions.model_fields["quality"].description,
+        },
         "frames": {"type": "boolean", "default": True, "description": JobOptions.model_fields["frames"].description},
-        "content": {"type": "string", "enum": ["auto", "full"], "default": "auto", "description": JobOptions.model_fields["content"].description},
+        "content": {
+            "type": "string",
+            "enum": ["auto", "full"],
+            "default": "auto",
+            "description": JobOptions.model_fields["content"].description,
+        },
     }
     return {
         "required": True,
@@ -110,16 +162,30 @@ class JobStatus(BaseModel):
 
     model_config = {
         "json_schema_extra": {
-            "examples": [{
-                "id": "q0Xq3b9bYJgP4yL2m9Vb0w", "status": "running", "filename": "p7.mp4",
-                "options": {"fps": 18.0, "method": "rnn", "format": "png", "quality": 95, "frames": True},
-                "frames_done": 12, "frames_total": 36, "progress": 0.333, "error": None, "note": None, "attempts": 1,
-                "created_at": "2024-05-01T10:00:00Z", "started_at": "2024-05-01T10:00:01Z",
-                "finished_at": None, "expires_at": None,
-                "links": {"self": "/v1/jobs/q0Xq3b9bYJgP4yL2m9Vb0w", "video": "/v1/jobs/q0Xq3b9bYJgP4yL2m9Vb0w/video",
-                          "gammas": "/v1/jobs/q0Xq3b9bYJgP4yL2m9Vb0w/gammas",
-                          "frames": "/v1/jobs/q0Xq3b9bYJgP4yL2m9Vb0w/frames.zip"},
-            }]
+            "examples": [
+                {
+                    "id": "q0Xq3b9bYJgP4yL2m9Vb0w",
+                    "status": "running",
+                    "filename": "p7.mp4",
+                    "options": {"fps": 18.0, "method": "rnn", "format": "png", "quality": 95, "frames": True},
+                    "frames_done": 12,
+                    "frames_total": 36,
+                    "progress": 0.333,
+                    "error": None,
+                    "note": None,
+                    "attempts": 1,
+                    "created_at": "2024-05-01T10:00:00Z",
+                    "started_at": "2024-05-01T10:00:01Z",
+                    "finished_at": None,
+                    "expires_at": None,
+                    "links": {
+                        "self": "/v1/jobs/q0Xq3b9bYJgP4yL2m9Vb0w",
+                        "video": "/v1/jobs/q0Xq3b9bYJgP4yL2m9Vb0w/video",
+                        "gammas": "/v1/jobs/q0Xq3b9bYJgP4yL2m9Vb0w/gammas",
+                        "frames": "/v1/jobs/q0Xq3b9bYJgP4yL2m9Vb0w/frames.zip",
+                    },
+                }
+            ]
         }
     }
 
@@ -139,12 +205,26 @@ class EnhanceResult(BaseModel):
 
     model_config = {
         "json_schema_extra": {
-            "examples": [{
-                "gammas": {"clip": "p7", "fps": 18.0, "method": "rnn", "frame_count": 2,
-                           "frames": [{"index": 0, "time_s": 0.0, "source_time_s": 0.0, "gamma": 1.0, "seed": True},
-                                      {"index": 1, "time_s": 0.055556, "source_time_s": 0.04, "gamma": 1.0, "seed": True}]},
-                "video": {"media_type": "video/mp4", "encoding": "base64", "size_bytes": 1234, "data": "AAAAIGZ0eXBpc29t..."},
-            }]
+            "examples": [
+                {
+                    "gammas": {
+                        "clip": "p7",
+                        "fps": 18.0,
+                        "method": "rnn",
+                        "frame_count": 2,
+                        "frames": [
+                            {"index": 0, "time_s": 0.0, "source_time_s": 0.0, "gamma": 1.0, "seed": True},
+                            {"index": 1, "time_s": 0.055556, "source_time_s": 0.04, "gamma": 1.0, "seed": True},
+                        ],
+                    },
+                    "video": {
+                        "media_type": "video/mp4",
+                        "encoding": "base64",
+                        "size_bytes": 1234,
+                        "data": "AAAAIGZ0eXBpc29t...",
+                    },
+                }
+            ]
         }
     }
 

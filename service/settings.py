@@ -25,26 +25,46 @@ class Settings(BaseSettings):
     host: str = Field("127.0.0.1", description="Address uvicorn binds to (`colonlight serve --host`).")
     port: int = Field(8000, ge=0, le=65535, description="Port uvicorn listens on (`colonlight serve --port`).")
     data_dir: Path = Field(Path("colonlight-service"), description="Jobs, results and the SQLite job table live here.")
-    workers: int = Field(default_factory=_default_workers, ge=1, le=64,
-                         description="Clips processed at once (default: one per two cores).")
-    queue_size: int = Field(16, ge=0, le=10_000, description="Jobs that may wait beyond the running ones; more get 503.")
+    workers: int = Field(
+        default_factory=_default_workers,
+        ge=1,
+        le=64,
+        description="Clips processed at once (default: one per two cores).",
+    )
+    queue_size: int = Field(
+        16, ge=0, le=10_000, description="Jobs that may wait beyond the running ones; more get 503."
+    )
     max_upload_mb: float = Field(2048.0, gt=0, description="Largest accepted upload in MiB; larger ones get 413.")
-    max_uploads: int = Field(8, ge=1, le=10_000,
-                             description="Uploads received at once; more get 503. Counted apart from the job queue: "
-                                         "a job is admitted only once its upload is complete.")
-    upload_idle_seconds: float = Field(30.0, gt=0,
-                                       description="An upload whose body makes no progress this long gets 408 and "
-                                                   "its partial file is removed.")
-    upload_min_bytes_per_s: float = Field(1024.0, ge=0,
-                                          description="Progress means at least this many bytes a second, averaged "
-                                                      "over each upload_idle_seconds (0: any byte); a trickle below "
-                                                      "it is a stall.")
-    max_pixels: int = Field(DEFAULT_MAX_PIXELS, ge=1,
-                            description="Largest frame (width x height) accepted, read from the stream header at upload "
-                                        "time; larger ones get 413 before any frame is decoded (COLONLIGHT_MAX_PIXELS, "
-                                        "the same variable as the CLI's).")
+    max_uploads: int = Field(
+        8,
+        ge=1,
+        le=10_000,
+        description="Uploads received at once; more get 503. Counted apart from the job queue: "
+        "a job is admitted only once its upload is complete.",
+    )
+    upload_idle_seconds: float = Field(
+        30.0,
+        gt=0,
+        description="An upload whose body makes no progress this long gets 408 and its partial file is removed.",
+    )
+    upload_min_bytes_per_s: float = Field(
+        1024.0,
+        ge=0,
+        description="Progress means at least this many bytes a second, averaged "
+        "over each upload_idle_seconds (0: any byte); a trickle below "
+        "it is a stall.",
+    )
+    max_pixels: int = Field(
+        DEFAULT_MAX_PIXELS,
+        ge=1,
+        description="Largest frame (width x height) accepted, read from the stream header at upload "
+        "time; larger ones get 413 before any frame is decoded (COLONLIGHT_MAX_PIXELS, "
+        "the same variable as the CLI's).",
+    )
     sync_max_seconds: float = Field(20.0, gt=0, description="Longest clip POST /v1/enhance accepts (seconds).")
-    result_ttl_seconds: float = Field(24 * 3600.0, gt=0, description="Finished jobs are deleted this long after they end.")
+    result_ttl_seconds: float = Field(
+        24 * 3600.0, gt=0, description="Finished jobs are deleted this long after they end."
+    )
     sweep_interval_seconds: float = Field(60.0, gt=0, description="How often expired jobs are swept.")
     retry_after_seconds: int = Field(10, ge=1, description="Retry-After sent with 503 when the queue is full.")
     max_attempts: int = Field(2, ge=1, description="Starts of a job (restarts included) before it is marked failed.")
@@ -59,13 +79,28 @@ class Settings(BaseSettings):
     torch_threads: int | None = Field(None, ge=1, description="torch intra-op threads (default: cores / workers).")
     log_level: str = Field("info", description="uvicorn log level.")
     malloc_arena_max: int = Field(2, ge=0, description="glibc malloc arenas (0: glibc's default); keeps memory flat.")
-    stream_max: int = Field(4, ge=0, le=256, description="WebSocket streams (/v1/stream) open at once; more are "
-                            "refused with close code 1013 (0 turns the route off).")
-    stream_max_frame_mb: float = Field(16.0, gt=0, le=1024, description="Largest WebSocket message (one frame) in "
-                                       "MiB; a larger one closes the stream with code 1009.")
-    stream_idle_seconds: float = Field(60.0, gt=0, description="A stream with no message for this long is closed (1001).")
-    stream_send_timeout_seconds: float = Field(30.0, gt=0, description="A stream whose client reads no answer for "
-                                               "this long is dropped: a slow client holds one answer, no more.")
+    stream_max: int = Field(
+        4,
+        ge=0,
+        le=256,
+        description="WebSocket streams (/v1/stream) open at once; more are "
+        "refused with close code 1013 (0 turns the route off).",
+    )
+    stream_max_frame_mb: float = Field(
+        16.0,
+        gt=0,
+        le=1024,
+        description="Largest WebSocket message (one frame) in MiB; a larger one closes the stream with code 1009.",
+    )
+    stream_idle_seconds: float = Field(
+        60.0, gt=0, description="A stream with no message for this long is closed (1001)."
+    )
+    stream_send_timeout_seconds: float = Field(
+        30.0,
+        gt=0,
+        description="A stream whose client reads no answer for "
+        "this long is dropped: a slow client holds one answer, no more.",
+    )
 
     @field_validator("api_key", mode="before")
     @classmethod

@@ -90,8 +90,16 @@ class JobStore:
             self._db.execute(
                 "INSERT INTO jobs (id, status, filename, input_name, input_bytes, options, created_at, frames_total) "
                 "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-                (rec.id, rec.status, rec.filename, rec.input_name, rec.input_bytes, json.dumps(rec.options),
-                 rec.created_at, rec.frames_total),
+                (
+                    rec.id,
+                    rec.status,
+                    rec.filename,
+                    rec.input_name,
+                    rec.input_bytes,
+                    json.dumps(rec.options),
+                    rec.created_at,
+                    rec.frames_total,
+                ),
             )
 
     def get(self, job_id: str) -> JobRecord | None:
@@ -149,7 +157,8 @@ class JobStore:
         with self._lock:
             rows = self._db.execute(
                 "SELECT id FROM jobs WHERE finished_at IS NOT NULL AND finished_at <= ? "
-                "AND status IN ('succeeded', 'failed')", (cutoff,)
+                "AND status IN ('succeeded', 'failed')",
+                (cutoff,),
             ).fetchall()
         return [r["id"] for r in rows]
 

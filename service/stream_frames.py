@@ -51,11 +51,11 @@ def _jpeg_size(data: bytes) -> tuple[int, int]:
         if marker in _JPEG_NO_LENGTH:
             pos += 2
             continue
-        (length,) = struct.unpack(">H", data[pos + 2:pos + 4])
+        (length,) = struct.unpack(">H", data[pos + 2 : pos + 4])
         if marker in _JPEG_SOF:
             if pos + 9 > len(data):
                 break
-            height, width = struct.unpack(">HH", data[pos + 5:pos + 9])
+            height, width = struct.unpack(">HH", data[pos + 5 : pos + 9])
             return width, height
         if marker == 0xDA or length < 2:  # image data before any frame header
             raise FrameError("not a valid JPEG: no frame header before the image data")
@@ -83,12 +83,15 @@ def decode_frame(data: bytes, limit: int) -> np.ndarray:
     if header.width == 0 or header.height == 0:
         raise FrameError(f"the {header.format.upper()} is {header.width}x{header.height}: an empty image")
     if header.width * header.height > limit:
-        raise FrameError(f"the {header.format.upper()} is {header.width}x{header.height} = "
-                         f"{header.width * header.height} pixels, over the limit of {limit} ({MAX_PIXELS_ENV})")
+        raise FrameError(
+            f"the {header.format.upper()} is {header.width}x{header.height} = "
+            f"{header.width * header.height} pixels, over the limit of {limit} ({MAX_PIXELS_ENV})"
+        )
     bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     if bgr is None or bgr.shape[:2] != (header.height, header.width):
-        raise FrameError(f"the {header.format.upper()} ({header.width}x{header.height}) could not be decoded: "
-                         "corrupt or truncated")
+        raise FrameError(
+            f"the {header.format.upper()} ({header.width}x{header.height}) could not be decoded: corrupt or truncated"
+        )
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 

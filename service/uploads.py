@@ -110,7 +110,9 @@ class _Collector:
             return
         self._data += data[start:end]
         if len(self._data) > MAX_FIELD_BYTES:
-            raise ApiError(422, "validation_error", f"form field `{self._name[:50]}` is longer than {MAX_FIELD_BYTES} bytes")
+            raise ApiError(
+                422, "validation_error", f"form field `{self._name[:50]}` is longer than {MAX_FIELD_BYTES} bytes"
+            )
 
     def on_part_end(self) -> None:
         if not self._in_file:
@@ -119,18 +121,30 @@ class _Collector:
             self.fields[self._name] = self._data.decode("utf-8", "replace")
 
     def callbacks(self) -> dict[str, Any]:
-        return {name: getattr(self, name) for name in (
-            "on_part_begin", "on_header_field", "on_header_value", "on_header_end", "on_headers_finished",
-            "on_part_data", "on_part_end")}
+        return {
+            name: getattr(self, name)
+            for name in (
+                "on_part_begin",
+                "on_header_field",
+                "on_header_value",
+                "on_header_end",
+                "on_headers_finished",
+                "on_part_data",
+                "on_part_end",
+            )
+        }
 
 
 def _boundary(request: Request) -> bytes:
     ctype = request.headers.get("content-type", "")
     kind, params = parse_options_header(ctype)
     if kind != b"multipart/form-data":
-        raise ApiError(415, "unsupported_media_type",
-                       f"send the clip as multipart/form-data in a part named `{FILE_FIELD}` (got {ctype[:80] or 'no content type'!r})",
-                       CLOSE)
+        raise ApiError(
+            415,
+            "unsupported_media_type",
+            f"send the clip as multipart/form-data in a part named `{FILE_FIELD}` (got {ctype[:80] or 'no content type'!r})",
+            CLOSE,
+        )
     boundary = params.get(b"boundary")
     if not boundary:
         raise ApiError(400, "bad_request", "multipart/form-data without a boundary", CLOSE)
@@ -143,16 +157,22 @@ CLOSE = {"Connection": "close"}
 
 
 def too_large(max_bytes: int) -> ApiError:
-    return ApiError(413, "payload_too_large",
-                    f"the upload is larger than this server's limit of {max_bytes / 1048576:g} MiB (COLONLIGHT_MAX_UPLOAD_MB)",
-                    CLOSE)
+    return ApiError(
+        413,
+        "payload_too_large",
+        f"the upload is larger than this server's limit of {max_bytes / 1048576:g} MiB (COLONLIGHT_MAX_UPLOAD_MB)",
+        CLOSE,
+    )
 
 
 def stalled(idle_seconds: float, need: int) -> ApiError:
-    return ApiError(408, "request_timeout",
-                    f"the upload made no progress: under {need} bytes arrived in {idle_seconds:g} s "
-                    "(COLONLIGHT_UPLOAD_IDLE_SECONDS, COLONLIGHT_UPLOAD_MIN_BYTES_PER_S); what had arrived was discarded",
-                    CLOSE)
+    return ApiError(
+        408,
+        "request_timeout",
+        f"the upload made no progress: under {need} bytes arrived in {idle_seconds:g} s "
+        "(COLONLIGHT_UPLOAD_IDLE_SECONDS, COLONLIGHT_UPLOAD_MIN_BYTES_PER_S); what had arrived was discarded",
+        CLOSE,
+    )
 
 
 async def _chunks(request: Request, idle_seconds: float, min_bytes_per_s: float) -> AsyncIterator[bytes]:
@@ -182,8 +202,9 @@ async def _chunks(request: Request, idle_seconds: float, min_bytes_per_s: float)
         yield chunk
 
 
-async def receive_upload(request: Request, dest: Path, max_bytes: int, idle_seconds: float,
-                         min_bytes_per_s: float = 0.0) -> Upload:
+async def receive_upload(
+    request: Request, dest: Path, max_bytes: int, idle_seconds: float, min_bytes_per_s: float = 0.0
+) -> Upload:
     """Stream the multipart body of ``request``: the ``file`` part to ``dest``, other parts as text fields.
 
     Raises :class:`ApiError`: 415 (not multipart), 413 (over ``max_bytes``, checked against Content-Length first
@@ -214,7 +235,9 @@ async def receive_upload(request: Request, dest: Path, max_bytes: int, idle_seco
         if parser.state != MultipartState.END:
             raise ApiError(400, "bad_request", "incomplete multipart body: the closing boundary never came")
         if not collector.file_seen:
-            raise ApiError(422, "validation_error", f"the form has no `{FILE_FIELD}` part: attach the clip as `{FILE_FIELD}`")
+            raise ApiError(
+                422, "validation_error", f"the form has no `{FILE_FIELD}` part: attach the clip as `{FILE_FIELD}`"
+            )
     except MultipartParseError as exc:
         _cleanup(fh, dest)
         raise ApiError(400, "bad_request", f"malformed multipart body: {str(exc)[:200]}") from None

@@ -36,9 +36,7 @@ def ffmpeg_exe() -> str | None:
     return exe if exe and os.access(exe, os.X_OK) else None
 
 
-needs_ffmpeg = pytest.mark.skipif(
-    ffmpeg_exe() is None, reason="imageio-ffmpeg's ffmpeg binary is not available"
-)
+needs_ffmpeg = pytest.mark.skipif(ffmpeg_exe() is None, reason="imageio-ffmpeg's ffmpeg binary is not available")
 
 
 # ----------------------------------------------------------------------------------------------- index frames
@@ -128,8 +126,22 @@ def make_clip(
 def make_solid_clip(path: Path, size: tuple[int, int], n_frames: int = 2, fps: int = 6) -> Path:
     """A grey H.264 clip from FFmpeg's ``color`` source: cheap at any size (e.g. a tiny file of huge frames)."""
     w, h = size
-    _run(["-f", "lavfi", "-i", f"color=gray:s={w}x{h}:r={fps}", "-frames:v", str(n_frames),
-          "-c:v", "libx264", "-preset", "ultrafast", "-y", str(path)])
+    _run(
+        [
+            "-f",
+            "lavfi",
+            "-i",
+            f"color=gray:s={w}x{h}:r={fps}",
+            "-frames:v",
+            str(n_frames),
+            "-c:v",
+            "libx264",
+            "-preset",
+            "ultrafast",
+            "-y",
+            str(path),
+        ]
+    )
     return Path(path)
 
 
@@ -267,7 +279,9 @@ def ffmpeg_fps_indices(path: Path, fps: str | float = 18) -> list[int]:
     return [read_index(f) for f in ffmpeg_frames(path, vf=f"fps={fps}")]
 
 
-def make_noise_clip(path: Path, n_frames: int = 30, fps: float = 25, size: tuple[int, int] = (320, 240), seed: int = 0) -> Path:
+def make_noise_clip(
+    path: Path, n_frames: int = 30, fps: float = 25, size: tuple[int, int] = (320, 240), seed: int = 0
+) -> Path:
     """A clip of random pixels: its frames barely compress (a PNG of one is ~the raw size), so that a test can
     fill a small disk with a few of them."""
     path = Path(path)

@@ -50,13 +50,21 @@ class ServiceServer:
     def start(self, wait_ready: bool = True, timeout: float = 180.0) -> ServiceServer:
         self.port = free_port()
         env = {k: v for k, v in os.environ.items() if not k.startswith("COLONLIGHT_")}
-        env.update({"COLONLIGHT_DATA_DIR": str(self.data_dir), "COLONLIGHT_DEVICE": "cpu",
-                    "COLONLIGHT_LOG_LEVEL": "warning", "PYTHONUNBUFFERED": "1"})
+        env.update(
+            {
+                "COLONLIGHT_DATA_DIR": str(self.data_dir),
+                "COLONLIGHT_DEVICE": "cpu",
+                "COLONLIGHT_LOG_LEVEL": "warning",
+                "PYTHONUNBUFFERED": "1",
+            }
+        )
         env.update(self.extra_env)
         log = open(self.log_path, "ab")  # noqa: SIM115 - kept open for the process's life
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "colonlight_cli.main", "serve", "--host", "127.0.0.1", "--port", str(self.port)],
-            env=env, stdout=log, stderr=subprocess.STDOUT,
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
         )
         log.close()
         deadline = time.monotonic() + timeout

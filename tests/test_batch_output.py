@@ -160,8 +160,12 @@ def test_two_batches_on_one_output_folder(tmp_path: Path) -> None:
     out = tmp_path / "out"
     exe = Path(sys.executable).parent / "colonlight"
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "colonlight_cli.main"]
-    a = subprocess.Popen([*cmd, "enhance", str(first), "-o", str(out), "--fps", "0", *GAMMA],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    a = subprocess.Popen(
+        [*cmd, "enhance", str(first), "-o", str(out), "--fps", "0", *GAMMA],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         pid = _holder_pid(out / ".colonlight.lock", a)
         assert pid == a.pid
@@ -190,9 +194,15 @@ def test_a_killed_batch_never_blocks_the_next(tmp_path: Path) -> None:
     make_clip(tmp_path / "in" / "c.mp4", n_frames=20, fps=25)
     out = tmp_path / "out"
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time; from colonlight.outdir import output_lock\n"
-         "with output_lock(sys.argv[1]):\n    print('locked', flush=True); time.sleep(600)", str(out)],
-        stdout=subprocess.PIPE, text=True,
+        [
+            sys.executable,
+            "-c",
+            "import sys, time; from colonlight.outdir import output_lock\n"
+            "with output_lock(sys.argv[1]):\n    print('locked', flush=True); time.sleep(600)",
+            str(out),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
     )
     try:
         assert holder.stdout is not None and holder.stdout.readline().strip() == "locked"

@@ -16,14 +16,14 @@ import sys
 from pathlib import Path
 
 import pytest
+from colonlight_cli.display import printable
+from colonlight_cli.main import app
 from typer.testing import CliRunner
 
 from colonlight.atomic import json_bytes
 from colonlight.batch import MethodSpec, run_batch
 from colonlight.discovery import discover
 from colonlight.pipeline import ClipOptions
-from colonlight_cli.display import printable
-from colonlight_cli.main import app
 
 from .media import make_clip, make_image_folder
 
@@ -111,8 +111,12 @@ def test_non_utf8_names_on_an_ascii_terminal(hostile: Path, tmp_path: Path) -> N
     """A real process whose stderr is strict ASCII: every name is still printed, no UnicodeEncodeError."""
     make_clip(hostile / "clip ü.mov", n_frames=10, fps=25)
     env = {**os.environ, "PYTHONIOENCODING": "ascii:strict", "LC_ALL": "C", "COLUMNS": "200"}
-    proc = subprocess.run([*colonlight(), "enhance", str(hostile), "-o", str(tmp_path / "out"), *GAMMA],
-                          capture_output=True, env=env, timeout=300)
+    proc = subprocess.run(
+        [*colonlight(), "enhance", str(hostile), "-o", str(tmp_path / "out"), *GAMMA],
+        capture_output=True,
+        env=env,
+        timeout=300,
+    )
     err = proc.stderr.decode("ascii")  # strict: the whole output is ASCII
     assert proc.returncode == 1, err
     assert "Traceback" not in err and "UnicodeEncodeError" not in err
@@ -128,7 +132,9 @@ def _drop_read_anything() -> None:
             raise OSError(ctypes.get_errno(), "prctl(PR_CAPBSET_DROP) failed")
 
 
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="drops Linux capabilities to make a folder unreadable for root")
+@pytest.mark.skipif(
+    not sys.platform.startswith("linux"), reason="drops Linux capabilities to make a folder unreadable for root"
+)
 def test_unreadable_folder_is_one_line_and_the_rest_is_done(tmp_path: Path) -> None:
     root = tmp_path / "videos"
     make_clip(root / "ok" / "c1.mp4", n_frames=20, fps=25)
@@ -139,8 +145,13 @@ def test_unreadable_folder_is_one_line_and_the_rest_is_done(tmp_path: Path) -> N
         probe = subprocess.run(["ls", str(root / "locked")], preexec_fn=_drop_read_anything, capture_output=True)
         if probe.returncode == 0:
             pytest.skip("cannot make a folder unreadable here (capabilities cannot be dropped)")
-        proc = subprocess.run([*colonlight(), "enhance", str(root), "-o", str(out), *GAMMA],
-                              preexec_fn=_drop_read_anything, capture_output=True, text=True, timeout=300)
+        proc = subprocess.run(
+            [*colonlight(), "enhance", str(root), "-o", str(out), *GAMMA],
+            preexec_fn=_drop_read_anything,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
     finally:
         (root / "locked").chmod(0o755)
     assert proc.returncode == 1, proc.stderr
@@ -149,8 +160,13 @@ def test_unreadable_folder_is_one_line_and_the_rest_is_done(tmp_path: Path) -> N
     assert lines == [f"failed  {root / 'locked'}: cannot search this folder: permission denied"], proc.stderr
     doc = json.loads((out / "manifest.json").read_text())
     assert [c["clip"] for c in doc["clips"]] == ["ok/c1"] and doc["clips"][0]["status"] == "done"
-    assert doc["problems"] == [{"path": str(root / "locked"), "status": "failed",
-                                "error": f"{root / 'locked'}: cannot search this folder: permission denied"}]
+    assert doc["problems"] == [
+        {
+            "path": str(root / "locked"),
+            "status": "failed",
+            "error": f"{root / 'locked'}: cannot search this folder: permission denied",
+        }
+    ]
 
 
 def test_files_vanishing_between_discovery_and_processing(tmp_path: Path) -> None:
@@ -228,7 +244,9 @@ def test_deep_and_looping_trees_end(tmp_path: Path) -> None:
             level.rmdir()
 
 
-def test_dot_and_dotdot_inputs_never_write_outside_their_clip_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_dot_and_dotdot_inputs_never_write_outside_their_clip_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """``colonlight enhance .`` inside a frame folder: the clip is named after the folder, not "." (which would
     write its frames into OUT itself) nor ".." (above OUT)."""
     seq = tmp_path / "seq"

@@ -84,8 +84,11 @@ def wait_for_frames(out: Path, proc: subprocess.Popen[bytes], count: int, timeou
 
 def test_sigkill_of_the_batch_leaves_no_worker(long_clips: Path, tmp_path: Path) -> None:
     out = tmp_path / "out"
-    proc = subprocess.Popen(command("enhance", long_clips, "-o", out, "-j", "2", "--method", "gamma", "-q"),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        command("enhance", long_clips, "-o", out, "-j", "2", "--method", "gamma", "-q"),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         wait_for_frames(out, proc, 10)
         children = descendants(proc.pid)
@@ -112,11 +115,18 @@ CASES = [  # workers, signal, sent to, expected exit code, the method's options 
 ]
 
 
-@pytest.mark.parametrize(("workers", "signum", "target", "code", "method"), CASES,
-                         ids=[f"j{w}-{s.name}-{t}" for w, s, t, _, _ in CASES])
+@pytest.mark.parametrize(
+    ("workers", "signum", "target", "code", "method"), CASES, ids=[f"j{w}-{s.name}-{t}" for w, s, t, _, _ in CASES]
+)
 def test_interrupt_is_one_line_and_leaves_nothing_half_written(
-    long_clips: Path, tmp_path: Path, random_weights: Path, workers: str, signum: signal.Signals, target: str,
-    code: int, method: tuple[str, ...],
+    long_clips: Path,
+    tmp_path: Path,
+    random_weights: Path,
+    workers: str,
+    signum: signal.Signals,
+    target: str,
+    code: int,
+    method: tuple[str, ...],
 ) -> None:
     out = tmp_path / "out"
     weights = () if "gamma" in method else ("--weights", random_weights)
@@ -166,8 +176,12 @@ def test_a_clip_that_kills_its_worker_fails_alone(long_clips: Path, tmp_path: Pa
 
     out = tmp_path / "out"
     target = str(long_clips / "c1.mp4")
-    proc = subprocess.Popen(command("enhance", long_clips, "-o", out, "-j", "2", "--method", "gamma", "-q"),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        command("enhance", long_clips, "-o", out, "-j", "2", "--method", "gamma", "-q"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     kills: list[int] = []
     stop = threading.Event()
 

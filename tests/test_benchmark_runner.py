@@ -8,8 +8,10 @@ from benchmarks.__main__ import BENCHMARKS, parse
 
 
 def test_options_follow_their_benchmark() -> None:
-    assert parse(["quality_gate", "--json", "g.json", "enhance"]) == [("quality_gate", ["--json", "g.json"]),
-                                                                      ("enhance", [])]
+    assert parse(["quality_gate", "--json", "g.json", "enhance"]) == [
+        ("quality_gate", ["--json", "g.json"]),
+        ("enhance", []),
+    ]
     assert parse(["objective_landscape"]) == [("objective_landscape", [])]
     assert [name for name, _ in parse([])] == list(BENCHMARKS)
 

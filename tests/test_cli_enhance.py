@@ -18,9 +18,8 @@ from pathlib import Path
 import av
 import numpy as np
 import pytest
-from typer.testing import CliRunner
-
 from colonlight_cli.main import app
+from typer.testing import CliRunner
 
 from .media import make_clip, make_image_folder, text_file, truncated_copy, zero_byte_file
 
@@ -77,20 +76,37 @@ def test_tree_layout_and_gammas(tree: Path, tmp_path: Path, random_weights: Path
     assert all(0.125 <= f["gamma"] <= 4 for f in g["frames"])
     manifest = json.loads((out / "manifest.json").read_text())
     assert {c["clip"]: (c["status"], c["frames"]) for c in manifest["clips"]} == {
-        "seq": ("done", 12), "site 2/clip ü": ("done", 18), "site1/p7": ("done", 36)}
+        "seq": ("done", 12),
+        "site 2/clip ü": ("done", 18),
+        "site1/p7": ("done", 36),
+    }
 
 
 def test_direct_arguments_are_named_by_their_own_name(tree: Path, tmp_path: Path, random_weights: Path) -> None:
     out = tmp_path / "out"
-    code, text = invoke("enhance", tree / "site1" / "p7.mp4", tree / "seq", "-o", out, "--weights", random_weights, "-q")
+    code, text = invoke(
+        "enhance", tree / "site1" / "p7.mp4", tree / "seq", "-o", out, "--weights", random_weights, "-q"
+    )
     assert code == 0, text
     assert (out / "p7" / "gammas.json").is_file() and (out / "seq" / "gammas.json").is_file()
 
 
 def test_every_frame_video_and_jpeg(tree: Path, tmp_path: Path, random_weights: Path) -> None:
     out = tmp_path / "out"
-    code, text = invoke("enhance", tree / "site1" / "p7.mp4", "-o", out, "--weights", random_weights, "--fps", "0",
-                        "--video", "--format", "jpg", "-q")
+    code, text = invoke(
+        "enhance",
+        tree / "site1" / "p7.mp4",
+        "-o",
+        out,
+        "--weights",
+        random_weights,
+        "--fps",
+        "0",
+        "--video",
+        "--format",
+        "jpg",
+        "-q",
+    )
     assert code == 0, text
     assert len(list((out / "p7" / "frames").glob("*.jpg"))) == 50
     with av.open(str(out / "p7" / "enhanced.mp4")) as c:
@@ -180,8 +196,13 @@ def test_path_vanishing_mid_run(tree: Path, tmp_path: Path, random_weights: Path
         if event == "start" and clip == "p7":
             (tree / "site 2" / "clip ü.mov").unlink()
 
-    outcomes = run_batch(jobs, MethodSpec.of("rnn", weights=str(random_weights), device="cpu"), ClipOptions(),
-                         tmp_path / "out", progress=progress)
+    outcomes = run_batch(
+        jobs,
+        MethodSpec.of("rnn", weights=str(random_weights), device="cpu"),
+        ClipOptions(),
+        tmp_path / "out",
+        progress=progress,
+    )
     assert [o.status for o in outcomes] == ["done", "failed"]
     assert "clip ü.mov" in (outcomes[1].error or "")
 

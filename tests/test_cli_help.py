@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import pytest
-from typer.testing import CliRunner
-
 from colonlight_cli.main import app
+from typer.testing import CliRunner
 
 runner = CliRunner()
 

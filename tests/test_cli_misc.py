@@ -6,17 +6,32 @@ import json
 from pathlib import Path
 
 import av
-import pytest
-from typer.testing import CliRunner
-
 from colonlight_cli.main import app
+from typer.testing import CliRunner
 
 runner = CliRunner()
 
 
 def test_synth_command_writes_clips_with_ground_truth(tmp_path: Path) -> None:
-    result = runner.invoke(app, ["synth", str(tmp_path / "s"), "--clips", "2", "--frames", "12", "--width", "96",
-                                 "--height", "80", "--seed", "5", "--workers", "1"])
+    result = runner.invoke(
+        app,
+        [
+            "synth",
+            str(tmp_path / "s"),
+            "--clips",
+            "2",
+            "--frames",
+            "12",
+            "--width",
+            "96",
+            "--height",
+            "80",
+            "--seed",
+            "5",
+            "--workers",
+            "1",
+        ],
+    )
     assert result.exit_code == 0, result.output
     clips = sorted(p for p in (tmp_path / "s").iterdir() if p.is_dir())
     assert len(clips) == 2
@@ -33,17 +48,53 @@ def test_synth_rejects_bad_split(tmp_path: Path) -> None:
 
 
 def test_train_command_on_synthetic_clips(tmp_path: Path) -> None:
-    result = runner.invoke(app, ["train", "--synthetic", "2", "--synthetic-frames", "12", "--synthetic-val", "1",
-                                 "--synthetic-size", "48", "--size", "32", "--epochs", "1", "-o", str(tmp_path / "run"),
-                                 "--synthetic-occluders", "0.5", "--anchor", "0.05"])
+    result = runner.invoke(
+        app,
+        [
+            "train",
+            "--synthetic",
+            "2",
+            "--synthetic-frames",
+            "12",
+            "--synthetic-val",
+            "1",
+            "--synthetic-size",
+            "48",
+            "--size",
+            "32",
+            "--epochs",
+            "1",
+            "-o",
+            str(tmp_path / "run"),
+            "--synthetic-occluders",
+            "0.5",
+            "--anchor",
+            "0.05",
+        ],
+    )
     assert result.exit_code == 0, result.output
     card = json.loads((tmp_path / "run" / "colonlight-rnn.json").read_text())
-    assert card["training"]["command"].startswith("colonlight train ") and "--synthetic 2 " in card["training"]["command"]
-    assert "seeds 1000..1001" in card["training"]["data"] and "50% forced to have a close-occluder" in card["training"]["data"]
+    assert (
+        card["training"]["command"].startswith("colonlight train ") and "--synthetic 2 " in card["training"]["command"]
+    )
+    assert (
+        "seeds 1000..1001" in card["training"]["data"]
+        and "50% forced to have a close-occluder" in card["training"]["data"]
+    )
     assert card["training"]["anchor"] == 0.05 and "brightness anchor" in card["training"]["objective"]
     assert len(card["training"]["history"]) == 1
-    out = runner.invoke(app, ["enhance", str(tmp_path / "run" / "data" / "val"), "-o", str(tmp_path / "o"),
-                              "--weights", str(tmp_path / "run" / "colonlight-rnn.safetensors"), "-q"])
+    out = runner.invoke(
+        app,
+        [
+            "enhance",
+            str(tmp_path / "run" / "data" / "val"),
+            "-o",
+            str(tmp_path / "o"),
+            "--weights",
+            str(tmp_path / "run" / "colonlight-rnn.safetensors"),
+            "-q",
+        ],
+    )
     assert out.exit_code == 0, out.output
 
 

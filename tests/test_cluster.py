@@ -193,9 +193,7 @@ def videos(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
-def enhance(
-    *args: object, env: dict[str, str] | None = None, timeout: float = 120
-) -> subprocess.CompletedProcess[str]:
+def enhance(*args: object, env: dict[str, str] | None = None, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [*COLONLIGHT, "enhance", *map(str, args), "--quiet"],
         check=False,
@@ -323,9 +321,7 @@ def test_missing_and_broken_clips_fail_as_in_a_local_run(
     assert _outputs(tmp_path / "remote") == _outputs(tmp_path / "local")
 
 
-def test_runner_api_and_progress_events(
-    cluster: LoopbackCluster, videos: Path, weights: Path, tmp_path: Path
-) -> None:
+def test_runner_api_and_progress_events(cluster: LoopbackCluster, videos: Path, weights: Path, tmp_path: Path) -> None:
     """The service's entry (ClusterRunner.submit -> future of a ClipOutcome) and the batch's progress events."""
     cluster.ensure_workers(2)
     spec = MethodSpec.of("rnn", weights=str(weights), device="cpu")
@@ -379,17 +375,13 @@ def test_unreachable_scheduler_is_one_line(tmp_path: Path, weights: Path) -> Non
     assert proc.returncode == 1
     assert time.monotonic() - t0 < 30
     lines = _errors(proc.stderr)
-    assert len(lines) == 1 and "cannot reach the Dask scheduler" in lines[0] and str(port) in lines[0], (
-        proc.stderr
-    )
+    assert len(lines) == 1 and "cannot reach the Dask scheduler" in lines[0] and str(port) in lines[0], proc.stderr
 
 
 def _unshare_works() -> bool:
     if not shutil.which("unshare") or os.geteuid() != 0:
         return False
-    probe = subprocess.run(
-        ["unshare", "--mount", "--propagation", "private", "true"], check=False, capture_output=True
-    )
+    probe = subprocess.run(["unshare", "--mount", "--propagation", "private", "true"], check=False, capture_output=True)
     return probe.returncode == 0
 
 
@@ -424,9 +416,7 @@ def test_no_worker_then_a_worker_without_the_shared_files(tmp_path: Path, weight
         proc = enhance(*args, "--cluster", c.address)
         assert proc.returncode == 1, proc.stderr
         lines = _errors(proc.stderr)
-        assert (
-            len(lines) == 1 and "cannot see the output folder" in lines[0] and "shared filesystem" in lines[0]
-        ), lines
+        assert len(lines) == 1 and "cannot see the output folder" in lines[0] and "shared filesystem" in lines[0], lines
         assert not list((data / "out").rglob(f"{MARKER_NAME}*"))
 
         # A clip submitted directly (as the service does, without the batch's pre-flight) fails on its own.

@@ -15,6 +15,7 @@ import av
 import cv2
 import numpy as np
 import pytest
+from colonlight_cli.main import app
 from typer.testing import CliRunner
 
 from colonlight.content import DETECT_FRAMES, BlockStats, ContentStream, detect_area, iou
@@ -22,7 +23,6 @@ from colonlight.methods import create_method
 from colonlight.pipeline import ClipOptions, enhance_clip
 from colonlight.synth import SynthConfig, generate_clip
 from colonlight.synth.overlay import OverlaySpec
-from colonlight_cli.main import app
 
 from .media import make_clip
 
@@ -34,8 +34,9 @@ runner = CliRunner()
 @pytest.fixture(scope="module")
 def scene() -> np.ndarray:
     """``(N, H, W, 3)`` frames of a moving synthetic clip (seed 1: the camera travels, the lighting flickers)."""
-    cfg = SynthConfig.sample(np.random.default_rng([1, 0]), split="train", width=SIZE[0], height=SIZE[1],
-                             n_frames=N_FRAMES)
+    cfg = SynthConfig.sample(
+        np.random.default_rng([1, 0]), split="train", width=SIZE[0], height=SIZE[1], n_frames=N_FRAMES
+    )
     return np.stack([f.image for f in generate_clip(cfg, seed=1)])
 
 
@@ -79,8 +80,14 @@ def run_stream(stream: object, frames: np.ndarray) -> list:
 
 @pytest.mark.parametrize(
     "spec",
-    [OverlaySpec("round"), OverlaySpec("octagon"), OverlaySpec("round", text=True), OverlaySpec("octagon", text=True),
-     OverlaySpec("round", fov=0.8, text=True), OverlaySpec("none", text=True)],
+    [
+        OverlaySpec("round"),
+        OverlaySpec("octagon"),
+        OverlaySpec("round", text=True),
+        OverlaySpec("octagon", text=True),
+        OverlaySpec("round", fov=0.8, text=True),
+        OverlaySpec("none", text=True),
+    ],
     ids=lambda s: f"{s.border}-{s.fov}-{'text' if s.text else 'plain'}",
 )
 def test_detects_field_of_view_and_text(scene: np.ndarray, spec: OverlaySpec) -> None:
@@ -99,16 +106,38 @@ def test_no_border_no_text_is_the_full_frame(scene: np.ndarray) -> None:
         dark = np.clip(scene.astype(np.float32) * scale, 0, 255).astype(np.uint8)
         assert block_area(dark).is_full, scale
     rng = np.random.default_rng(0)
-    still = np.stack([np.clip(scene[0] * (1 + 0.3 * np.sin(i)) + rng.normal(0, 1, scene[0].shape), 0, 255)
-                      for i in range(DETECT_FRAMES)]).astype(np.uint8)
+    still = np.stack(
+        [
+            np.clip(scene[0] * (1 + 0.3 * np.sin(i)) + rng.normal(0, 1, scene[0].shape), 0, 255)
+            for i in range(DETECT_FRAMES)
+        ]
+    ).astype(np.uint8)
     assert block_area(still).is_full
 
 
 def test_detection_on_an_h264_clip_from_colonlight_synth(tmp_path: Path) -> None:
     """`colonlight synth --border octagon --text` writes content.png; detection on its decoded mp4 matches it."""
     out = tmp_path / "syn"
-    result = runner.invoke(app, ["synth", str(out), "--frames", str(DETECT_FRAMES), "--width", "192", "--height",
-                                 "144", "--border", "octagon", "--text", "--seed", "3", "-j", "1"])
+    result = runner.invoke(
+        app,
+        [
+            "synth",
+            str(out),
+            "--frames",
+            str(DETECT_FRAMES),
+            "--width",
+            "192",
+            "--height",
+            "144",
+            "--border",
+            "octagon",
+            "--text",
+            "--seed",
+            "3",
+            "-j",
+            "1",
+        ],
+    )
     assert result.exit_code == 0, result.output
     clip = out / "clip_00000"
     meta = json.loads((clip / "synth.json").read_text())
@@ -124,8 +153,9 @@ def test_detection_on_an_h264_clip_from_colonlight_synth(tmp_path: Path) -> None
 # ----------------------------------------------------------------------------------------------- outputs
 
 
-@pytest.mark.parametrize("spec", [OverlaySpec("round", text=True), OverlaySpec("octagon", text=True)],
-                         ids=["round", "octagon"])
+@pytest.mark.parametrize(
+    "spec", [OverlaySpec("round", text=True), OverlaySpec("octagon", text=True)], ids=["round", "octagon"]
+)
 def test_border_and_text_pixels_unchanged(scene: np.ndarray, spec: OverlaySpec, tmp_path: Path) -> None:
     """The shipped model through the pipeline: outside the drawn content every output pixel is the input's."""
     frames = drawn(scene, spec)
@@ -163,8 +193,10 @@ def test_gammas_match_the_clip_without_its_border(scene: np.ndarray) -> None:
     (full on the bordered clip: 0.034-0.124); disc mean |dg| 0.016-0.019 (full: 0.026-0.070)."""
     method = create_method("rnn")
     plain = np.array([r.gamma for r in run_stream(method.stream(), scene)])[2:]
-    for spec, stat, tol in ((OverlaySpec("octagon", text=True), np.max, 0.02),
-                            (OverlaySpec("round", text=True), np.mean, 0.03)):
+    for spec, stat, tol in (
+        (OverlaySpec("octagon", text=True), np.max, 0.02),
+        (OverlaySpec("round", text=True), np.mean, 0.03),
+    ):
         frames = drawn(scene, spec)
         auto = np.array([r.gamma for r in run_stream(ContentStream(method.stream()), frames)])[2:]
         full = np.array([r.gamma for r in run_stream(method.stream(), frames)])[2:]
@@ -186,7 +218,9 @@ def test_auto_is_bit_identical_on_clips_without_a_border(scene: np.ndarray, tmp_
     outs = {}
     for mode in ("auto", "full"):
         out = tmp_path / mode
-        result = runner.invoke(app, ["enhance", *map(str, inputs), "-o", str(out), "-q", "--fps", "0", "--content", mode])
+        result = runner.invoke(
+            app, ["enhance", *map(str, inputs), "-o", str(out), "-q", "--fps", "0", "--content", mode]
+        )
         assert result.exit_code == 0, result.output
         outs[mode] = out
     for clip in ("synthetic", "index"):

@@ -36,10 +36,23 @@ def test_two_cli_runs_write_identical_videos(tmp_path: Path) -> None:
     outputs = []
     for name, cores in (("all", CORES), ("one", CORES[:1])):
         out = tmp_path / name
-        cmd = [*_colonlight(), "enhance", str(clip), "-o", str(out), "--method", "gamma", "--gamma", "0.7",
-               "--video", "--no-frames", "-q"]
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300,
-                              preexec_fn=lambda c=set(cores): os.sched_setaffinity(0, c))
+        cmd = [
+            *_colonlight(),
+            "enhance",
+            str(clip),
+            "-o",
+            str(out),
+            "--method",
+            "gamma",
+            "--gamma",
+            "0.7",
+            "--video",
+            "--no-frames",
+            "-q",
+        ]
+        proc = subprocess.run(
+            cmd, capture_output=True, text=True, timeout=300, preexec_fn=lambda c=set(cores): os.sched_setaffinity(0, c)
+        )
         assert proc.returncode == 0, proc.stderr
         outputs.append((out / "clip" / "enhanced.mp4").read_bytes())
     assert len(outputs[0]) > 1000 and outputs[0] == outputs[1]

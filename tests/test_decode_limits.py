@@ -17,6 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from colonlight_cli.main import app
 from typer.testing import CliRunner
 
 from colonlight.errors import FrameTooLargeError, InputError
@@ -25,7 +26,6 @@ from colonlight.limits import DEFAULT_MAX_PIXELS, MAX_FPS, MAX_PIXELS_ENV, max_p
 from colonlight.pipeline import ClipOptions
 from colonlight.sources import check_frame_size, clip_frames
 from colonlight.video import is_video, iter_video_frames, probe_frame_size
-from colonlight_cli.main import app
 
 from .media import joined, make_clip, make_image_folder, make_solid_clip, needs_ffmpeg, remux
 
@@ -88,8 +88,9 @@ def test_bomb_is_refused_from_its_header_with_little_memory(bomb: Path) -> None:
         "    print(e.width, e.height, e.max_pixels, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - base)\n"
     )
     env = {k: v for k, v in os.environ.items() if k != MAX_PIXELS_ENV}
-    out = subprocess.run([sys.executable, "-c", code, str(bomb)], capture_output=True, text=True, env=env,
-                         timeout=120, check=True).stdout.split()
+    out = subprocess.run(
+        [sys.executable, "-c", code, str(bomb)], capture_output=True, text=True, env=env, timeout=120, check=True
+    ).stdout.split()
     assert out[:3] == ["6000", "6000", str(DEFAULT_MAX_PIXELS)], out
     assert int(out[3]) * 1024 < 40e6, f"the header check grew memory by {int(out[3]) / 1024:.0f} MB"
 
@@ -111,8 +112,9 @@ def test_frames_growing_past_the_cap_mid_stream_are_not_decoded(tmp_path: Path, 
         "    print(n, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - base, e)\n"
     )
     env = {k: v for k, v in os.environ.items() if k != MAX_PIXELS_ENV}
-    out = subprocess.run([sys.executable, "-c", code, str(clip)], capture_output=True, text=True, env=env,
-                         timeout=120, check=True).stdout.split(maxsplit=2)
+    out = subprocess.run(
+        [sys.executable, "-c", code, str(clip)], capture_output=True, text=True, env=env, timeout=120, check=True
+    ).stdout.split(maxsplit=2)
     assert len(out) == 3 and int(out[0]) <= 15 and out[2].startswith(str(clip)), out
     assert int(out[1]) * 1024 < 80e6, f"decoding grew memory by {int(out[1]) / 1024:.0f} MB: a 36 Mpx frame was made"
 
@@ -182,7 +184,11 @@ def test_cli_names_the_large_clip_fails_it_and_goes_on(tmp_path: Path, bomb: Pat
     assert code == 1, text
     manifest = {c["clip"]: c for c in json.loads((out / "manifest.json").read_text())["clips"]}
     assert {k: c["status"] for k, c in manifest.items()} == {
-        "bomb": "failed", "fine": "done", "seq": "failed", "wide": "failed"}
+        "bomb": "failed",
+        "fine": "done",
+        "seq": "failed",
+        "wide": "failed",
+    }
     assert "6000x6000" in manifest["bomb"]["error"] and "pixel cap of 40000" in manifest["bomb"]["error"]
     assert "320x240" in manifest["wide"]["error"] and str(videos / "wide.mkv") in manifest["wide"]["error"]
     assert str(videos / "seq") in manifest["seq"]["error"]

@@ -8,7 +8,6 @@ hold the peak to the bound that ``colonlight.pipeline.peak_rss_bound`` writes do
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 import tracemalloc

@@ -14,10 +14,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from colonlight_cli.main import app
 from typer.testing import CliRunner
 
 from colonlight.video import DecodeReport, iter_video_frames
-from colonlight_cli.main import app
 
 from .media import ffmpeg_exe, ffmpeg_fps_indices, joined, make_clip, make_vfr_clip, needs_ffmpeg, read_index
 
@@ -33,34 +33,53 @@ def _offset(seconds: float) -> list[str]:
 # name -> how to make it from a folder; second parts show frame indices from 100 on
 CLIPS: dict[str, Callable[[Path], Path]] = {
     # two recordings end to end: the second starts again at the muxer's 1.4 s
-    "joined.ts": lambda d: joined([make_clip(d / "a.ts", 30, 25), make_clip(d / "b.ts", 30, 25, first_index=100)],
-                                  d / "joined.ts"),
+    "joined.ts": lambda d: joined(
+        [make_clip(d / "a.ts", 30, 25), make_clip(d / "b.ts", 30, 25, first_index=100)], d / "joined.ts"
+    ),
     # the same with B-frames (reordered pts), audio, and a different rate in the second part
     "joined_bframes_audio.ts": lambda d: joined(
-        [make_clip(d / "c.ts", 40, 25, codec_args=BFRAMES, audio=True),
-         make_clip(d / "e.ts", 40, 30, codec_args=BFRAMES, audio=True, first_index=100)], d / "joined_bframes_audio.ts"),
+        [
+            make_clip(d / "c.ts", 40, 25, codec_args=BFRAMES, audio=True),
+            make_clip(d / "e.ts", 40, 30, codec_args=BFRAMES, audio=True, first_index=100),
+        ],
+        d / "joined_bframes_audio.ts",
+    ),
     # a 60 s jump forward: more than 10 s, so FFmpeg bridges it (no minute of repeats)
-    "jump60.ts": lambda d: joined([make_clip(d / "f.ts", 30, 25),
-                                   make_clip(d / "g.ts", 30, 25, first_index=100, output_args=_offset(60))],
-                                  d / "jump60.ts"),
+    "jump60.ts": lambda d: joined(
+        [make_clip(d / "f.ts", 30, 25), make_clip(d / "g.ts", 30, 25, first_index=100, output_args=_offset(60))],
+        d / "jump60.ts",
+    ),
     # 30 s backwards
-    "back30.ts": lambda d: joined([make_clip(d / "h.ts", 30, 25, output_args=_offset(30)),
-                                   make_clip(d / "i.ts", 30, 25, first_index=100)], d / "back30.ts"),
+    "back30.ts": lambda d: joined(
+        [make_clip(d / "h.ts", 30, 25, output_args=_offset(30)), make_clip(d / "i.ts", 30, 25, first_index=100)],
+        d / "back30.ts",
+    ),
     # half a second backwards (more than 0.1 s: bridged) and 0.05 s backwards (not: those frames are dropped)
-    "back0.5.ts": lambda d: joined([make_clip(d / "j.ts", 25, 25),
-                                    make_clip(d / "k.ts", 25, 25, first_index=100, output_args=_offset(0.5))],
-                                   d / "back0.5.ts"),
-    "back0.05.ts": lambda d: joined([make_clip(d / "l.ts", 25, 25),
-                                     make_clip(d / "m.ts", 25, 25, first_index=100, output_args=_offset(0.95))],
-                                    d / "back0.05.ts"),
+    "back0.5.ts": lambda d: joined(
+        [make_clip(d / "j.ts", 25, 25), make_clip(d / "k.ts", 25, 25, first_index=100, output_args=_offset(0.5))],
+        d / "back0.5.ts",
+    ),
+    "back0.05.ts": lambda d: joined(
+        [make_clip(d / "l.ts", 25, 25), make_clip(d / "m.ts", 25, 25, first_index=100, output_args=_offset(0.95))],
+        d / "back0.05.ts",
+    ),
     # the 33-bit wrap 1.5 s into the clip, alone and followed by a recording that starts at 0
     "wrap.ts": lambda d: make_clip(d / "wrap.ts", 75, 25, output_args=_offset(WRAP_S - 1.5)),
-    "wrap_joined.ts": lambda d: joined([make_clip(d / "n.ts", 75, 25, output_args=_offset(WRAP_S - 1.5)),
-                                        make_clip(d / "o.ts", 30, 25, first_index=100)], d / "wrap_joined.ts"),
+    "wrap_joined.ts": lambda d: joined(
+        [
+            make_clip(d / "n.ts", 75, 25, output_args=_offset(WRAP_S - 1.5)),
+            make_clip(d / "o.ts", 30, 25, first_index=100),
+        ],
+        d / "wrap_joined.ts",
+    ),
     # MPEG program streams join the same way (DVD/camcorder .mpg files)
-    "joined.mpg": lambda d: joined([make_clip(d / "p.mpg", 30, 25, codec_args=MPEG2),
-                                    make_clip(d / "q.mpg", 30, 25, codec_args=MPEG2, first_index=100)],
-                                   d / "joined.mpg"),
+    "joined.mpg": lambda d: joined(
+        [
+            make_clip(d / "p.mpg", 30, 25, codec_args=MPEG2),
+            make_clip(d / "q.mpg", 30, 25, codec_args=MPEG2, first_index=100),
+        ],
+        d / "joined.mpg",
+    ),
     # formats without timestamp jumps keep a gap: FFmpeg repeats the frame before it
     "gap12.mkv": lambda d: make_vfr_clip(d / "gap12.mkv", [0, 0.04, 0.08, 12.0, 12.04, 12.08]),
     "gap12.mp4": lambda d: make_vfr_clip(d / "gap12.mp4", [0, 0.04, 0.08, 12.0, 12.04, 12.08]),

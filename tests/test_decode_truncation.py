@@ -12,11 +12,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from colonlight_cli.main import app
 from typer.testing import CliRunner
 
 from colonlight.errors import InputError
 from colonlight.video import DecodeReport, iter_video_frames
-from colonlight_cli.main import app
 
 from .media import ffmpeg_exe, make_clip, needs_ffmpeg, truncated_copy
 

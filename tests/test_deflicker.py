@@ -44,8 +44,7 @@ def _yuv_clip(n: int, seed: int, base: float = 110, amp: float = 60) -> tuple[li
     rng = np.random.default_rng(seed)
     texture = rng.integers(0, 100, (H, W)) - 50.0
     ys = [
-        np.clip(texture + base + amp * np.sin(1.3 * k) + rng.normal(0, 10), 16, 235).astype(np.uint8)
-        for k in range(n)
+        np.clip(texture + base + amp * np.sin(1.3 * k) + rng.normal(0, 10), 16, 235).astype(np.uint8) for k in range(n)
     ]
     chroma = rng.integers(16, 241, (n, 2, H // 2, W // 2), dtype=np.uint8)
     return ys, chroma
@@ -55,9 +54,7 @@ def _ffmpeg_yuv(
     exe: str, ys: list[np.ndarray], chroma: np.ndarray, size: int, mode: str
 ) -> tuple[np.ndarray, np.ndarray]:
     raw = b"".join(y.tobytes() + c.tobytes() for y, c in zip(ys, chroma, strict=True))
-    out = np.frombuffer(
-        _ffmpeg(exe, raw, "yuv420p", (H, W), f"deflicker=size={size}:mode={mode}", "yuv420p"), np.uint8
-    )
+    out = np.frombuffer(_ffmpeg(exe, raw, "yuv420p", (H, W), f"deflicker=size={size}:mode={mode}", "yuv420p"), np.uint8)
     out = out.reshape(-1, H * W * 3 // 2)
     return out[:, : H * W].reshape(-1, H, W), out[:, H * W :].reshape(-1, 2, H // 2, W // 2)
 
@@ -80,9 +77,7 @@ def test_luma_planes_match_ffmpeg(ffmpeg: str, mode: str, size: int) -> None:
     ys, chroma = _yuv_clip(14, seed=size)
     ref_y, ref_c = _ffmpeg_yuv(ffmpeg, ys, chroma, size, mode)
     assert len(ref_y) == len(ys)  # one output per input, end padded
-    np.testing.assert_array_equal(
-        ref_c, chroma
-    )  # FFmpeg copies chroma; so do we (RGB: see the end-to-end test)
+    np.testing.assert_array_equal(ref_c, chroma)  # FFmpeg copies chroma; so do we (RGB: see the end-to-end test)
     compat = np.stack([y for y, _ in deflicker_planes(ys, size, mode, ffmpeg_compatible=True)])
     np.testing.assert_array_equal(compat, ref_y)  # bit-exact, float32 emulation included
     fixed = np.stack([y for y, _ in deflicker_planes(ys, size, mode)])

@@ -16,10 +16,13 @@ def test_cpu_and_auto() -> None:
     assert resolve_device("auto") == resolve_device("") == expected
 
 
-@pytest.mark.parametrize(("spec", "message"), [
-    ("tpu", "unknown device 'tpu': choose auto, cpu, cuda or cuda:N"),
-    ("cuda:x", "device 'cuda:x': expected cuda or cuda:N with N a number"),
-])
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        ("tpu", "unknown device 'tpu': choose auto, cpu, cuda or cuda:N"),
+        ("cuda:x", "device 'cuda:x': expected cuda or cuda:N with N a number"),
+    ],
+)
 def test_malformed_devices(spec: str, message: str) -> None:
     with pytest.raises(DeviceError) as err:
         resolve_device(spec)

@@ -5,17 +5,18 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from typer.testing import CliRunner
-
 from colonlight_cli.main import app
+from typer.testing import CliRunner
 
 
 def test_enhance_takes_each_synthetic_clip_folder_as_one_clip(tmp_path: Path) -> None:
     """`colonlight synth clips/` then `colonlight enhance clips/`: one clip per synthetic folder, its video."""
     runner = CliRunner()
     clips = tmp_path / "clips"
-    made = runner.invoke(app, ["synth", str(clips), "--clips", "2", "--frames", "10", "--width", "64",
-                               "--height", "48", "--workers", "1"])
+    made = runner.invoke(
+        app,
+        ["synth", str(clips), "--clips", "2", "--frames", "10", "--width", "64", "--height", "48", "--workers", "1"],
+    )
     assert made.exit_code == 0, made.output
     folders = sorted(p.name for p in clips.iterdir() if p.is_dir())
     assert len(folders) == 2 and all((clips / f / "clean").is_dir() and (clips / f / "depth").is_dir() for f in folders)

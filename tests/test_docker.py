@@ -38,9 +38,7 @@ STEPS_COMMAND = "colonlight-docker-steps"  # the name the Dockerfile installs th
 
 @dataclass
 class Dockerfile:
-    instructions: list[
-        tuple[str, str]
-    ]  # (INSTRUCTION, arguments), continuation lines joined, comments dropped
+    instructions: list[tuple[str, str]]  # (INSTRUCTION, arguments), continuation lines joined, comments dropped
     comments: list[tuple[int, str]] = field(default_factory=list)  # (line number, text) of every comment line
     args: dict[str, str] = field(default_factory=dict)  # ARG defaults, ${VAR} expanded
     env: dict[str, str] = field(default_factory=dict)
@@ -271,11 +269,7 @@ def test_image_steps_in_a_fresh_venv_then_its_default_command(dockerfile: Docker
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
     python = venv / "bin" / "python"
     env = {
-        **{
-            k: v
-            for k, v in os.environ.items()
-            if not k.startswith(("VIRTUAL_ENV", "PYTHONPATH", "COLONLIGHT_"))
-        },
+        **{k: v for k, v in os.environ.items() if not k.startswith(("VIRTUAL_ENV", "PYTHONPATH", "COLONLIGHT_"))},
         **dockerfile.args,
         "TORCH_INDEX": "",
         "PYTHON": str(python),
@@ -314,9 +308,7 @@ def test_image_steps_in_a_fresh_venv_then_its_default_command(dockerfile: Docker
             for part in (p.strip() for p in rest.split("&&")):
                 if any(rx.fullmatch(part) for rx in image_only):
                     continue
-                assert STEPS_COMMAND in part, (
-                    f"RUN step `{part}` is not emulated here: teach this test about it"
-                )
+                assert STEPS_COMMAND in part, f"RUN step `{part}` is not emulated here: teach this test about it"
                 t0 = time.monotonic()
                 proc = subprocess.run(
                     ["sh", "-c", part],
@@ -368,9 +360,7 @@ def test_image_steps_in_a_fresh_venv_then_its_default_command(dockerfile: Docker
     ]
     argv = [str(a) for a in argv]
     log = open(tmp_path / "serve.log", "wb")  # noqa: SIM115
-    server = subprocess.Popen(
-        argv, cwd=data, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
-    )
+    server = subprocess.Popen(argv, cwd=data, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     try:
         deadline = time.monotonic() + 90
         status = None
@@ -476,14 +466,9 @@ def test_compose_is_consistent_with_the_image(dockerfile: Dockerfile) -> None:
     assert {"api", "scheduler", "worker"} <= services.keys()
     images = {s.get("image") for s in services.values()}
     builds = {json.dumps(s.get("build"), sort_keys=True) for s in services.values()}
-    assert len(images) == 1 and len(builds) == 1, (
-        "every service runs the same image, built from this Dockerfile"
-    )
+    assert len(images) == 1 and len(builds) == 1, "every service runs the same image, built from this Dockerfile"
     build = services["api"]["build"]
-    assert (
-        Path(REPO / build["context"]).resolve() == REPO
-        and build.get("dockerfile", "Dockerfile") == "Dockerfile"
-    )
+    assert Path(REPO / build["context"]).resolve() == REPO and build.get("dockerfile", "Dockerfile") == "Dockerfile"
     assert set(build.get("args", {})) <= set(dockerfile.args), "build args the Dockerfile does not declare"
 
     entrypoint, cmd = dockerfile.exec_form("ENTRYPOINT"), dockerfile.exec_form("CMD")

@@ -93,9 +93,7 @@ def test_rerun_reuses_tracking_and_colmap_and_adds_only_the_new_method(tmp_path:
     # the key is the frames' content: other frames (another gamma) are scored afresh
     third = runner.invoke(app, [*base, "--methods", "gamma", "--no-colmap"])
     assert third.exit_code == 0, third.output
-    assert (
-        json.loads((out / "results.json").read_text())["settings"]["cache"]["computed"] == 2
-    )  # fixed, affine
+    assert json.loads((out / "results.json").read_text())["settings"]["cache"]["computed"] == 2  # fixed, affine
 
 
 def test_brightness_both_fixed_and_bad(tmp_path: Path) -> None:
@@ -112,9 +110,7 @@ def test_brightness_both_fixed_and_bad(tmp_path: Path) -> None:
     rows = {r["method"]: r for r in record["summary"]}
     assert list(rows) == ["clean", "oracle-curve", "oracle-gamma", "none", "rnn (ours)"]
     for m in ("fixed", "affine"):
-        assert (
-            rows["none"][f"track_success_{m}"] in (0, 1) and 0 <= rows["none"][f"tracked_fraction_{m}"] <= 1
-        )
+        assert rows["none"][f"track_success_{m}"] in (0, 1) and 0 <= rows["none"][f"tracked_fraction_{m}"] <= 1
         assert f"gap_closed_tracked_{m}" in rows["rnn (ours)"] and f"rescue_rate_{m}" in rows["rnn (ours)"]
     assert set(record["failure_breakdown"]) == {"fixed", "affine"}
     md = (out / "table.md").read_text()

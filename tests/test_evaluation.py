@@ -59,9 +59,7 @@ def _texture(seed: int = 0, size: int = 512) -> np.ndarray:
     return (t - t.min()) / (t.max() - t.min())
 
 
-def _render(
-    pose: np.ndarray, K: np.ndarray, w: int, h: int, tex: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def _render(pose: np.ndarray, K: np.ndarray, w: int, h: int, tex: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """RGB uint8 frame and z-depth (metres) of the box from camera-to-world ``pose`` (ray casting)."""
     u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
     rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1) @ pose[:3, :3].T
@@ -77,9 +75,7 @@ def _render(
         p = centre + t[..., None] * rays
         a = ((p @ e1) / _TEXEL_M + size / 2 + 100 * k) % size
         b = ((p @ e2) / _TEXEL_M + size / 2) % size
-        val = cv2.remap(
-            tex, a.astype(np.float32), b.astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP
-        )
+        val = cv2.remap(tex, a.astype(np.float32), b.astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
         grey = np.where(hit, val, grey)
         depth = np.where(hit, t, depth)  # rays have z = 1 in the camera: t is the z-depth
     rgb = np.stack([grey * 200 + 30, grey * 150 + 40, grey * 120 + 30], -1)
@@ -199,18 +195,14 @@ def test_flow_correspondence_compensates_known_motion(box: EvalClip) -> None:
 def test_synthetic_clip_loads_at_working_size(tmp_path: Path) -> None:
     from colonlight.synth import SynthConfig, write_clip
 
-    cfg = SynthConfig.sample(
-        np.random.default_rng(3), split="heldout", width=96, height=72, n_frames=5, steady=True
-    )
+    cfg = SynthConfig.sample(np.random.default_rng(3), split="heldout", width=96, height=72, n_frames=5, steady=True)
     folder = write_clip(tmp_path / "s", cfg, 3, video=False)
     full = load_synthetic_clip(folder, max_size=None)
     half = load_synthetic_clip(folder, max_size=48)
     assert full.frames[0].shape == (72, 96, 3) and half.frames[0].shape == (36, 48, 3)
     assert half.depths is not None and half.depths[0].shape == (36, 48) and len(half.poses or []) == 5
     assert half.K is not None and full.K is not None
-    assert half.K[0, 0] == pytest.approx(full.K[0, 0] / 2) and half.K[0, 2] == pytest.approx(
-        (full.K[0, 2] - 0.5) / 2
-    )
+    assert half.K[0, 0] == pytest.approx(full.K[0, 0] / 2) and half.K[0, 2] == pytest.approx((full.K[0, 2] - 0.5) / 2)
     assert half.meta["scale"] == 0.5 and half.meta["original_size"] == [96, 72]
     assert half.clean is not None and len(half.clean) == 5
     # the lighting ground truth comes along (the failure breakdown reads it)
@@ -322,11 +314,7 @@ def test_colmap_registers_a_textured_clip(box: EvalClip) -> None:
     assert result.registered >= 10 and result.fraction >= 10 / 12
     assert result.ate is not None and result.ate["rmse"] < 2e-4  # metres; the camera moves ~1.5 mm
     d = result.to_dict()
-    assert (
-        d["fraction"] == result.fraction
-        and "poses" not in d
-        and len(d["registered_frames"]) == result.registered
-    )
+    assert d["fraction"] == result.fraction and "poses" not in d and len(d["registered_frames"]) == result.registered
 
 
 def test_colmap_failing_to_initialise_is_zero_registered() -> None:
@@ -391,9 +379,7 @@ def test_oracles_gap_closed_and_failure_breakdown_on_a_known_gain_jump(box: Eval
         t = record.results[label].tracking or {}
         assert t["fixed"]["success"] and t["affine"]["success"], label
     gammas = record.results["oracle-gamma"].gammas or []
-    assert gammas[:6] == pytest.approx([1.0] * 6, abs=0.01) and gammas[6:] == pytest.approx(
-        [0.7] * 6, abs=0.02
-    )
+    assert gammas[:6] == pytest.approx([1.0] * 6, abs=0.01) and gammas[6:] == pytest.approx([0.7] * 6, abs=0.02)
     failures = record.input_failures
     assert [f["frame"] for f in failures] == list(range(6, 12))
     assert all(f["brightness"] == "fixed" for f in failures)  # affine: the input tracks every frame
@@ -440,9 +426,7 @@ def test_failure_causes_from_lighting_ground_truth() -> None:
     assert classify(steady, {**steady, "contrast": 1.3}, 0.0)["cause"] == "tone-curve change"
     # exposure counts through exposure ** (contrast / camera_gamma): x2 at gamma 2.2 is x1.37 in display
     lag = classify(steady, {**steady, "exposure": 2.0}, 0.0, camera_gamma=2.2)
-    assert lag["cause"] == "exposure lag" and lag["changes"]["exposure_ratio"] == pytest.approx(
-        2 ** (1 / 2.2)
-    )
+    assert lag["cause"] == "exposure lag" and lag["changes"]["exposure_ratio"] == pytest.approx(2 ** (1 / 2.2))
     assert classify(steady, {**steady, "gain": 1.05}, 0.0)["cause"] == "other"  # below the 10 % threshold
     assert classify(steady, steady, 0.0, after_failure=True)["cause"] == "after a failure"
     both = classify(steady, {**steady, "gain": 1.2, "contrast": 1.5}, 0.2)
@@ -492,11 +476,7 @@ def test_every_method_through_the_runner(all_methods_run: tuple) -> None:
         for t in r.tracking.values():
             assert t["applicable"] and isinstance(t["success"], bool) and 0.0 <= t["tracked_fraction"] <= 1.0
     none = clip.results["none"]
-    assert (
-        none.flicker_out == none.flicker_in
-        and none.ssim_out == none.ssim_in
-        and none.dark_out == none.dark_in
-    )
+    assert none.flicker_out == none.flicker_in and none.ssim_out == none.ssim_in and none.dark_out == none.dark_in
     rnn = clip.results["rnn (ours)"]
     seeds = _shipped_seed_frames()  # written unchanged (gamma 1): 2 for the paper's head, 0 for a restoring model
     assert rnn.gammas is not None and len(rnn.gammas) == 10 and rnn.gammas[:seeds] == [1.0] * seeds

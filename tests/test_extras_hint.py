@@ -8,9 +8,8 @@ from pathlib import Path
 
 import pytest
 from click.testing import Result
-from typer.testing import CliRunner
-
 from colonlight_cli.main import app
+from typer.testing import CliRunner
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -38,14 +37,16 @@ def test_missing_eval_extra_hint_prints_the_extra_and_works_from_the_checkout(
     pip = os.path.relpath(Path(sys.executable).parent / "pip", REPO)
     pip = pip if not pip.startswith("..") else str(Path(sys.executable).parent / "pip")
     assert f"{pip} install -e '.[eval]'" in line, line
-    elsewhere = _colonlight_without("skimage", "evaluate", str(clip), "--no-colmap", cwd=tmp_path,
-                                    monkeypatch=monkeypatch)
+    elsewhere = _colonlight_without(
+        "skimage", "evaluate", str(clip), "--no-colmap", cwd=tmp_path, monkeypatch=monkeypatch
+    )
     assert f"install -e '{REPO}[eval]'" in " ".join(elsewhere.output.split()), elsewhere.output
 
 
 def test_missing_export_extra_hint_keeps_its_brackets(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    result = _colonlight_without("onnx,onnxscript", "export", "-o", str(tmp_path / "m.onnx"), cwd=REPO,
-                                 monkeypatch=monkeypatch)
+    result = _colonlight_without(
+        "onnx,onnxscript", "export", "-o", str(tmp_path / "m.onnx"), cwd=REPO, monkeypatch=monkeypatch
+    )
     assert result.exit_code == 1
     assert "install -e '.[export]'" in " ".join(result.output.split()), result.output
 

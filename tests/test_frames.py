@@ -37,7 +37,13 @@ def _write(path: Path, img: np.ndarray) -> Path:
 def test_natural_key_orders_numbers_as_numbers() -> None:
     names = ["frame10.png", "frame2.png", "Frame3.png", "frame1.png", "frame02.png", "frame100.png", "a.png"]
     assert sorted(names, key=natural_key) == [
-        "a.png", "frame1.png", "frame02.png", "frame2.png", "Frame3.png", "frame10.png", "frame100.png"
+        "a.png",
+        "frame1.png",
+        "frame02.png",
+        "frame2.png",
+        "Frame3.png",
+        "frame10.png",
+        "frame100.png",
     ]
     assert natural_key("x²1") < natural_key("x²2")  # non-ASCII digits stay text, no crash
 
@@ -79,7 +85,7 @@ def test_is_image_folder(tmp_path: Path) -> None:
     assert not is_image_folder(empty)
     assert not is_image_folder(tmp_path / "missing")
     assert not is_image_folder(frames / "notes.txt")
-    assert IMAGE_SUFFIXES == {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
+    assert {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"} == IMAGE_SUFFIXES
 
 
 # --------------------------------------------------------------------------------------------------- iterate

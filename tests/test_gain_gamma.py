@@ -118,8 +118,9 @@ def _pair_clip(root: Path, seed: int, n: int = 14, size: int = 32) -> Path:
 
 def test_supervised_training_records_its_head_objective_and_seeds(tmp_path: Path) -> None:
     clips = [_pair_clip(tmp_path / f"c{i}", i) for i in range(3)]
-    cfg = TrainConfig(size=32, seq_len=6, stride=4, batch=2, lr=3e-3, epochs=3, fps=None, head="gain-gamma",
-                      objective="restore")
+    cfg = TrainConfig(
+        size=32, seq_len=6, stride=4, batch=2, lr=3e-3, epochs=3, fps=None, head="gain-gamma", objective="restore"
+    )
     res = train(clips[:2], clips[2:], tmp_path / "run", cfg, name="gg")
     card = res.card
     assert card["head"] == "gain-gamma" and card["seed_frames"] == 0

@@ -166,8 +166,24 @@ def test_y4m_stream_is_read_by_ffmpeg_frame_for_frame(tmp_path: Path) -> None:
         pipe.write(i, index_frame(i * 3, 129, 97))  # odd sizes: padded to 130x98
     pipe.close()
     proc = subprocess.run(
-        [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-f", "yuv4mpegpipe", "-i", "-", "-f", "rawvideo",
-         "-pix_fmt", "rgb24", "-"], input=buf.getvalue(), capture_output=True, check=True,
+        [
+            ffmpeg_exe(),
+            "-hide_banner",
+            "-loglevel",
+            "error",
+            "-f",
+            "yuv4mpegpipe",
+            "-i",
+            "-",
+            "-f",
+            "rawvideo",
+            "-pix_fmt",
+            "rgb24",
+            "-",
+        ],
+        input=buf.getvalue(),
+        capture_output=True,
+        check=True,
     )
     frames = np.frombuffer(proc.stdout, np.uint8).reshape(-1, 98, 130, 3)
     assert [read_index(f[:97, :129]) for f in frames] == [0, 3, 6, 9, 12]

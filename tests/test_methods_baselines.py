@@ -98,9 +98,7 @@ def _clahe_ref(img: np.ndarray, clip: float, grid: tuple[int, int]) -> np.ndarra
 
 @pytest.mark.parametrize("shape", [(64, 48), (37, 53), (135, 240), (5, 7)])
 @pytest.mark.parametrize("clip,grid", [(2.0, (8, 8)), (40.0, (3, 5)), (0.0, (8, 8))])
-def test_opencv_clahe_matches_the_spec_algorithm(
-    shape: tuple[int, int], clip: float, grid: tuple[int, int]
-) -> None:
+def test_opencv_clahe_matches_the_spec_algorithm(shape: tuple[int, int], clip: float, grid: tuple[int, int]) -> None:
     h, w = shape
     img = cv2.cvtColor(_natural(h, w), cv2.COLOR_RGB2GRAY)
     got = cv2.createCLAHE(clipLimit=clip, tileGridSize=grid).apply(img)

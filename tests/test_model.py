@@ -101,8 +101,16 @@ def test_a_new_stream_starts_from_zero_state(random_weights: Path) -> None:
 
 @pytest.mark.parametrize(
     ("a", "gamma", "clamped"),
-    [(2.0, 0.5, False), (1.0, 1.0, False), (0.0, 1.0, True), (-1.0, 1.0, True), (float("nan"), 1.0, True),
-     (float("inf"), 1.0, True), (1e-9, GAMMA_MAX, True), (1e9, GAMMA_MIN, True)],
+    [
+        (2.0, 0.5, False),
+        (1.0, 1.0, False),
+        (0.0, 1.0, True),
+        (-1.0, 1.0, True),
+        (float("nan"), 1.0, True),
+        (float("inf"), 1.0, True),
+        (1e-9, GAMMA_MAX, True),
+        (1e9, GAMMA_MIN, True),
+    ],
 )
 def test_gamma_guard(a: float, gamma: float, clamped: bool) -> None:
     assert clamp_gamma(a) == (pytest.approx(gamma), clamped)

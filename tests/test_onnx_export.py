@@ -16,6 +16,8 @@ from typer.testing import CliRunner
 pytest.importorskip("onnxruntime", reason="the export extra (onnxruntime) is not installed")
 pytest.importorskip("onnxscript", reason="the export extra (onnxscript) is not installed")
 
+from colonlight_cli.main import app  # noqa: E402
+
 from colonlight.checkpoint import LoadedWeights, load_weights  # noqa: E402
 from colonlight.methods.rnn import GAMMA_MAX, GAMMA_MIN, SEED_FRAMES, RecurrentGammaMethod, network_input  # noqa: E402
 from colonlight.model import GammaNet, State  # noqa: E402
@@ -23,7 +25,6 @@ from colonlight.onnx_export import export_onnx, read_sidecar, sidecar_path  # no
 from colonlight.onnx_step import cpu_session  # noqa: E402
 from colonlight.sources import clip_frames  # noqa: E402
 from colonlight.video import VideoWriter  # noqa: E402
-from colonlight_cli.main import app  # noqa: E402
 
 runner = CliRunner()
 CLIP_FRAMES = 100
@@ -136,10 +137,16 @@ def test_a_head_with_two_outputs_exports_unchanged_and_is_named_by_the_card(tmp_
     torch.manual_seed(1)
     net = GainGammaNet().eval()
     card = {
-        "name": "gain-gamma-test", "input_size": 24,
-        "outputs": [{"name": "gain", "meaning": "multiply the frame by it"}, {"name": "gamma", "meaning": "then ** gamma"}],
+        "name": "gain-gamma-test",
+        "input_size": 24,
+        "outputs": [
+            {"name": "gain", "meaning": "multiply the frame by it"},
+            {"name": "gamma", "meaning": "then ** gamma"},
+        ],
     }
-    weights = LoadedWeights(net=net, name="gain-gamma-test", sha256="0" * 64, path=tmp_path / "x.safetensors", card=card)
+    weights = LoadedWeights(
+        net=net, name="gain-gamma-test", sha256="0" * 64, path=tmp_path / "x.safetensors", card=card
+    )
     record = export_onnx(weights, tmp_path / "gg.onnx", size=24)  # any size: the graph is fixed at the one asked
     assert [o["name"] for o in record["outputs"]] == ["gain", "gamma", "h_out", "c_out"]
     assert record["outputs"][0]["meaning"] == "multiply the frame by it"
@@ -175,8 +182,9 @@ def test_the_gain_gamma_head_exports_as_z_with_its_correction_and_runs_on_onnxru
     net = GammaNet(head="gain-gamma").eval()
     with torch.no_grad():
         net.out_linear.weight.normal_(0.0, 0.5)  # away from the identity start, so the outputs move
-    weights = LoadedWeights(net=net, name="gg", sha256="1" * 64, path=tmp_path / "gg.safetensors",
-                            card={"input_size": 32, "seed_frames": 0})
+    weights = LoadedWeights(
+        net=net, name="gg", sha256="1" * 64, path=tmp_path / "gg.safetensors", card={"input_size": 32, "seed_frames": 0}
+    )
     record = export_onnx(weights, tmp_path / "gg.onnx", size=32)
     assert [o["name"] for o in record["outputs"]] == ["z", "h_out", "c_out"] and record["outputs"][0]["shape"] == [1, 2]
     assert record["gamma"]["from_output"] == "z" and "gain" in record["gamma"]["formula"]

@@ -23,9 +23,7 @@ def clean() -> np.ndarray:
     """A clean 96-px frame of the project's generator (a real wall: shading, texture, noise)."""
     from colonlight.synth import SynthConfig, generate_clip
 
-    cfg = SynthConfig.sample(
-        np.random.default_rng(4), split="train", width=96, height=96, n_frames=1, steady=True
-    )
+    cfg = SynthConfig.sample(np.random.default_rng(4), split="train", width=96, height=96, n_frames=1, steady=True)
     return next(iter(generate_clip(cfg, 4))).clean
 
 
@@ -74,9 +72,7 @@ def test_oracle_curve_recovers_a_monotone_non_gamma_curve(clean: np.ndarray) -> 
         assert lut[u] == np.rint(clean[frame == u].mean()), u
     injective = [c for c in np.unique(clean) if np.count_nonzero(s_curve == s_curve[c]) == 1]
     assert len(injective) > 100
-    assert np.array_equal(
-        lut[s_curve[injective]], injective
-    )  # exact inverse where the curve kept levels apart
+    assert np.array_equal(lut[s_curve[injective]], injective)  # exact inverse where the curve kept levels apart
     out = apply_lut(frame, lut)
     assert _error(out, clean) < 0.3 and _error(frame, clean) > 20 * _error(out, clean)
     # one gamma cannot do this: the curve oracle is much better here

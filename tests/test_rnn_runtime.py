@@ -13,9 +13,10 @@ from typer.testing import CliRunner
 pytest.importorskip("onnxruntime", reason="the export extra (onnxruntime) is not installed")
 pytest.importorskip("onnxscript", reason="the export extra (onnxscript) is not installed")
 
+from colonlight_cli.main import app  # noqa: E402
+
 from colonlight.methods.rnn import RecurrentGammaMethod  # noqa: E402
 from colonlight.methods.rnn_onnx import cache_dir  # noqa: E402
-from colonlight_cli.main import app  # noqa: E402
 
 from .media import make_vfr_clip, vfr_times  # noqa: E402
 
@@ -35,8 +36,9 @@ def test_enhance_on_onnxruntime_gives_torchs_gammas_and_caches_the_graph(
     records = {}
     for runtime in ("torch", "onnxruntime"):
         out = tmp_path / runtime
-        result = runner.invoke(app, ["enhance", str(tmp_path / "clip.mp4"), "-o", str(out), "--fps", "0", "-q",
-                                     "--runtime", runtime])
+        result = runner.invoke(
+            app, ["enhance", str(tmp_path / "clip.mp4"), "-o", str(out), "--fps", "0", "-q", "--runtime", runtime]
+        )
         assert result.exit_code == 0, result.output
         records[runtime] = json.loads((out / "clip" / "gammas.json").read_text())
     assert records["onnxruntime"]["parameters"]["runtime"] == "onnxruntime"
@@ -60,8 +62,9 @@ def test_enhance_on_onnxruntime_gives_torchs_gammas_and_caches_the_graph(
     assert cached[0].read_bytes()[:4] != b"not "
 
 
-def test_what_onnxruntime_cannot_run_is_refused_in_one_line(tmp_path: Path, onnx_cache: Path,
-                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+def test_what_onnxruntime_cannot_run_is_refused_in_one_line(
+    tmp_path: Path, onnx_cache: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.setenv("COLONLIGHT_CACHE_DIR", str(onnx_cache))
     make_vfr_clip(tmp_path / "clip.mp4", vfr_times(4))
     cases = {
@@ -70,8 +73,9 @@ def test_what_onnxruntime_cannot_run_is_refused_in_one_line(tmp_path: Path, onnx
         ("--device", "cuda"): "cuda",
     }
     for extra, message in cases.items():
-        result = runner.invoke(app, ["enhance", str(tmp_path / "clip.mp4"), "-o", str(tmp_path / "o"),
-                                     "--runtime", "onnxruntime", *extra])
+        result = runner.invoke(
+            app, ["enhance", str(tmp_path / "clip.mp4"), "-o", str(tmp_path / "o"), "--runtime", "onnxruntime", *extra]
+        )
         assert result.exit_code == 2 and message in result.output and "Traceback" not in result.output, extra
     bad = runner.invoke(app, ["enhance", str(tmp_path / "clip.mp4"), "-o", str(tmp_path / "o"), "--runtime", "tvm"])
     assert bad.exit_code == 2 and "choose torch or onnxruntime" in bad.output

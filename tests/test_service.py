@@ -43,8 +43,13 @@ def clips(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory, random_weights: Path) -> Iterator[ServiceServer]:
     data = tmp_path_factory.mktemp("service") / "data"
-    env = {"COLONLIGHT_WEIGHTS": str(random_weights), "COLONLIGHT_WORKERS": "2", "COLONLIGHT_QUEUE_SIZE": "8",
-           "COLONLIGHT_MAX_UPLOAD_MB": str(MAX_UPLOAD_MB), "COLONLIGHT_SYNC_MAX_SECONDS": "3"}
+    env = {
+        "COLONLIGHT_WEIGHTS": str(random_weights),
+        "COLONLIGHT_WORKERS": "2",
+        "COLONLIGHT_QUEUE_SIZE": "8",
+        "COLONLIGHT_MAX_UPLOAD_MB": str(MAX_UPLOAD_MB),
+        "COLONLIGHT_SYNC_MAX_SECONDS": "3",
+    }
     with ServiceServer(data, env) as srv:
         yield srv
 
@@ -141,13 +146,28 @@ def test_job_round_trip(client: httpx.Client, clips: dict[str, Path], server: Se
     assert not job_dir.exists()
 
 
-def test_same_gammas_as_the_cli(client: httpx.Client, clips: dict[str, Path], tmp_path: Path, random_weights: Path) -> None:
+def test_same_gammas_as_the_cli(
+    client: httpx.Client, clips: dict[str, Path], tmp_path: Path, random_weights: Path
+) -> None:
     """The service runs the CLI's pipeline: identical gammas.json frames and settings for the same clip."""
     r = submit(client, clips["mp4"], fps="18")
     done = wait_done(client, r.headers["location"])
     served = client.get(done["links"]["gammas"]).json()
-    result = CliRunner().invoke(cli_app, ["enhance", str(clips["mp4"]), "-o", str(tmp_path), "--weights",
-                                          str(random_weights), "--device", "cpu", "--video", "-q"])
+    result = CliRunner().invoke(
+        cli_app,
+        [
+            "enhance",
+            str(clips["mp4"]),
+            "-o",
+            str(tmp_path),
+            "--weights",
+            str(random_weights),
+            "--device",
+            "cpu",
+            "--video",
+            "-q",
+        ],
+    )
     assert result.exit_code == 0, result.output
     local = json.loads((tmp_path / "p7" / "gammas.json").read_text())
     assert served["frames"] == local["frames"]
@@ -173,14 +193,17 @@ def test_every_frame_jpeg_from_avi_with_method_none(client: httpx.Client, clips:
 
 
 def test_video_only_job_has_no_frames_zip(client: httpx.Client, clips: dict[str, Path]) -> None:
-    done = wait_done(client, submit(client, clips["mp4"], frames="false", method="gamma", gamma="0.5").headers["location"])
+    done = wait_done(
+        client, submit(client, clips["mp4"], frames="false", method="gamma", gamma="0.5").headers["location"]
+    )
     assert done["status"] == "succeeded"
     assert client.get(done["links"]["gammas"]).json()["frames"][3]["gamma"] == 0.5
     assert_json_error(client.get(done["links"]["frames"]), 404)
 
 
-def test_results_of_an_unfinished_job_are_409_and_delete_stops_it(client: httpx.Client, clips: dict[str, Path],
-                                                                   server: ServiceServer) -> None:
+def test_results_of_an_unfinished_job_are_409_and_delete_stops_it(
+    client: httpx.Client, clips: dict[str, Path], server: ServiceServer
+) -> None:
     r = submit(client, clips["long"], fps="0", model_size="full")
     loc = r.headers["location"]
     body = client.get(loc + "/video")
@@ -205,8 +228,9 @@ def test_results_of_an_unfinished_job_are_409_and_delete_stops_it(client: httpx.
 
 
 @pytest.mark.parametrize("kind", ["text", "empty", "random", "truncated"])
-def test_non_video_upload_is_415(client: httpx.Client, clips: dict[str, Path], server: ServiceServer, kind: str,
-                                 tmp_path: Path) -> None:
+def test_non_video_upload_is_415(
+    client: httpx.Client, clips: dict[str, Path], server: ServiceServer, kind: str, tmp_path: Path
+) -> None:
     if kind == "random":
         path = tmp_path / "noise.mp4"
         path.write_bytes(bytes(range(256)) * 200)
@@ -258,8 +282,9 @@ def test_oversized_upload_is_413_and_leaves_nothing(client: httpx.Client, server
         ({"colour": "blue"}, 422, "colour"),
     ],
 )
-def test_bad_options_are_422(client: httpx.Client, clips: dict[str, Path], server: ServiceServer, fields: dict,
-                             status: int, needle: str) -> None:
+def test_bad_options_are_422(
+    client: httpx.Client, clips: dict[str, Path], server: ServiceServer, fields: dict, status: int, needle: str
+) -> None:
     body = assert_json_error(submit(client, clips["mp4"], **fields), status)
     assert needle in json.dumps(body)
     assert leftovers(server) == []
@@ -268,8 +293,14 @@ def test_bad_options_are_422(client: httpx.Client, clips: dict[str, Path], serve
 def test_malformed_requests_are_json_errors(client: httpx.Client) -> None:
     assert_json_error(client.post("/v1/jobs", content=b"raw bytes", headers={"Content-Type": "video/mp4"}), 415)
     assert_json_error(client.post("/v1/jobs", data={"fps": "18"}, files={"other": ("x", b"y")}), 422)
-    assert_json_error(client.post("/v1/jobs", content=b"--b\r\nContent-Disposition: form-data; name=\"file\"\r\n\r\nab",
-                                  headers={"Content-Type": "multipart/form-data; boundary=b"}), 400)
+    assert_json_error(
+        client.post(
+            "/v1/jobs",
+            content=b'--b\r\nContent-Disposition: form-data; name="file"\r\n\r\nab',
+            headers={"Content-Type": "multipart/form-data; boundary=b"},
+        ),
+        400,
+    )
     assert_json_error(client.post("/v1/jobs", content=b"x", headers={"Content-Type": "multipart/form-data"}), 400)
     assert_json_error(client.get("/v1/jobs/not-an-id"), 422)
     assert_json_error(client.get("/v1/jobs/AAAAAAAAAAAAAAAAAAAAAA"), 404)
@@ -285,7 +316,9 @@ def test_sync_enhance(client: httpx.Client, clips: dict[str, Path], server: Serv
     assert body["gammas"]["frame_count"] == 36 and body["gammas"]["model"]["name"] == "random-test"
     video = base64.b64decode(body["video"]["data"])
     assert len(video) == body["video"]["size_bytes"] and decoded_frames(video)[0] == 36
-    too_long = assert_json_error(client.post("/v1/enhance", files={"file": ("long.mp4", clips["long"].read_bytes())}), 413)
+    too_long = assert_json_error(
+        client.post("/v1/enhance", files={"file": ("long.mp4", clips["long"].read_bytes())}), 413
+    )
     assert "/v1/jobs" in too_long["message"]
     assert_json_error(client.post("/v1/enhance", files={"file": ("x.mp4", clips["text"].read_bytes())}), 415)
     time.sleep(0.3)
@@ -312,8 +345,17 @@ def test_metrics(client: httpx.Client, clips: dict[str, Path]) -> None:
 def test_openapi_schema_is_complete(client: httpx.Client) -> None:
     schema = client.get("/openapi.json").json()
     paths = schema["paths"]
-    assert set(paths) >= {"/v1/jobs", "/v1/jobs/{job_id}", "/v1/jobs/{job_id}/video", "/v1/jobs/{job_id}/gammas",
-                          "/v1/jobs/{job_id}/frames.zip", "/v1/enhance", "/healthz", "/readyz", "/metrics"}
+    assert set(paths) >= {
+        "/v1/jobs",
+        "/v1/jobs/{job_id}",
+        "/v1/jobs/{job_id}/video",
+        "/v1/jobs/{job_id}/gammas",
+        "/v1/jobs/{job_id}/frames.zip",
+        "/v1/enhance",
+        "/healthz",
+        "/readyz",
+        "/metrics",
+    }
     for path, ops in paths.items():
         for method, op in ops.items():
             assert op.get("summary"), (method, path)
@@ -324,7 +366,11 @@ def test_openapi_schema_is_complete(client: httpx.Client) -> None:
     assert {"202", "413", "415", "503"} <= set(post["responses"])
     assert "Location" in post["responses"]["202"]["headers"]
     comps = schema["components"]["schemas"]
-    assert comps["JobStatus"].get("examples") and comps["ErrorBody"].get("examples") and comps["EnhanceResult"].get("examples")
+    assert (
+        comps["JobStatus"].get("examples")
+        and comps["ErrorBody"].get("examples")
+        and comps["EnhanceResult"].get("examples")
+    )
     assert paths["/v1/jobs/{job_id}/video"]["get"]["responses"]["200"]["content"]["video/mp4"]
 
 
@@ -333,7 +379,9 @@ def test_web_page_is_served(client: httpx.Client) -> None:
     assert page.status_code == 200 and "text/html" in page.headers["content-type"] and 'id="drop"' in page.text
     assert client.get("/static/app.js").status_code == 200
     info = client.get("/v1/info").json()
-    assert "rnn" in info["methods"] and info["auth_required"] is False and info["limits"]["max_upload_mb"] == MAX_UPLOAD_MB
+    assert (
+        "rnn" in info["methods"] and info["auth_required"] is False and info["limits"]["max_upload_mb"] == MAX_UPLOAD_MB
+    )
 
 
 def test_frames_total_at_submission_is_the_final_count(client: httpx.Client, tmp_path: Path) -> None:

@@ -23,9 +23,17 @@ from .service_server import ServiceServer
 
 CHROMIUM = Path(os.environ.get("COLONLIGHT_CHROMIUM", "/usr/bin/chromium"))
 REPO = Path(__file__).resolve().parents[1]
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync",
-        "--autoplay-policy=no-user-gesture-required"]
+ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--autoplay-policy=no-user-gesture-required",
+]
 
 pytestmark = [
     pytest.mark.timeout(180),
@@ -104,7 +112,9 @@ def test_drop_a_clip_and_watch_it(server: ServiceServer, tmp_path: Path) -> None
                 }""",
                 [base64.b64encode(clip.read_bytes()).decode(), clip.name],
             )
-            page.wait_for_function("['running', 'queued', 'succeeded'].includes(document.querySelector('#status').dataset.status)")
+            page.wait_for_function(
+                "['running', 'queued', 'succeeded'].includes(document.querySelector('#status').dataset.status)"
+            )
             page.wait_for_function("document.querySelector('#status').dataset.status === 'succeeded'", timeout=90_000)
             page.wait_for_function("Number(document.querySelector('#plot').dataset.points || 0) > 0")
             points = int(page.eval_on_selector("#plot", "s => s.dataset.points"))
@@ -128,9 +138,13 @@ def test_drop_a_clip_and_watch_it(server: ServiceServer, tmp_path: Path) -> None
             decoded = page.eval_on_selector("#enhanced", "v => v.getVideoPlaybackQuality().totalVideoFrames")
             assert decoded > 5
             # the playhead follows the video; pause mid-clip for the picture
-            page.evaluate("""() => { for (const v of document.querySelectorAll('video')) { v.pause(); v.currentTime = 1.6; } }""")
-            page.wait_for_function("Math.abs(document.querySelector('#enhanced').currentTime - 1.6) < 0.05 && "
-                                   "document.querySelector('#enhanced').readyState >= 2")
+            page.evaluate(
+                """() => { for (const v of document.querySelectorAll('video')) { v.pause(); v.currentTime = 1.6; } }"""
+            )
+            page.wait_for_function(
+                "Math.abs(document.querySelector('#enhanced').currentTime - 1.6) < 0.05 && "
+                "document.querySelector('#enhanced').readyState >= 2"
+            )
             page.wait_for_function("document.querySelector('#gamma-now').textContent.includes('γ')")
             page.wait_for_timeout(300)
             assert float(page.eval_on_selector("#playhead", "l => l.getAttribute('x1')")) > 100

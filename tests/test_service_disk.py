@@ -26,8 +26,9 @@ def small_disk(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     mount_point = tmp_path_factory.mktemp("small-disk")
     if os.geteuid() != 0 or shutil.which("mount") is None:
         pytest.skip("mounting a small tmpfs as the data folder needs root and mount(8)")
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={TMPFS_MB}m", "tmpfs", str(mount_point)],
-                          capture_output=True, text=True)
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={TMPFS_MB}m", "tmpfs", str(mount_point)], capture_output=True, text=True
+    )
     if done.returncode != 0:
         pytest.skip(f"mounting a tmpfs is not permitted here: {done.stderr.strip()}")
     try:
@@ -38,8 +39,12 @@ def small_disk(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
 
 @pytest.fixture(scope="module")
 def server(small_disk: Path, random_weights: Path) -> Iterator[ServiceServer]:
-    env = {"COLONLIGHT_WEIGHTS": str(random_weights), "COLONLIGHT_WORKERS": "1",
-           "COLONLIGHT_MAX_UPLOAD_MB": str(4 * TMPFS_MB), "COLONLIGHT_SYNC_MAX_SECONDS": "5"}
+    env = {
+        "COLONLIGHT_WEIGHTS": str(random_weights),
+        "COLONLIGHT_WORKERS": "1",
+        "COLONLIGHT_MAX_UPLOAD_MB": str(4 * TMPFS_MB),
+        "COLONLIGHT_SYNC_MAX_SECONDS": "5",
+    }
     with ServiceServer(small_disk / "data", env, log=small_disk.parent / "small-disk-server.log") as srv:
         yield srv
     assert "Traceback" not in srv.log()
@@ -78,8 +83,9 @@ def post(client: httpx.Client, route: str, path: Path, **fields: str) -> httpx.R
     return client.post(route, files={"file": (path.name, path.read_bytes(), "video/mp4")}, data=fields)
 
 
-def test_upload_that_fills_the_disk_is_507(client: httpx.Client, server: ServiceServer, small_disk: Path,
-                                          tmp_path: Path) -> None:
+def test_upload_that_fills_the_disk_is_507(
+    client: httpx.Client, server: ServiceServer, small_disk: Path, tmp_path: Path
+) -> None:
     big = tmp_path / "big.mp4"
     big.write_bytes(os.urandom((TMPFS_MB + 4) << 20))  # more than the whole disk, less than the upload limit
     free_before = free_bytes(small_disk)
@@ -91,8 +97,9 @@ def test_upload_that_fills_the_disk_is_507(client: httpx.Client, server: Service
         assert free_bytes(small_disk) >= free_before - (64 << 10)  # ... and its space is free again
 
 
-def test_results_that_do_not_fit_fail_the_job_with_the_reason(client: httpx.Client, server: ServiceServer,
-                                                              small_disk: Path, clip: Path) -> None:
+def test_results_that_do_not_fit_fail_the_job_with_the_reason(
+    client: httpx.Client, server: ServiceServer, small_disk: Path, clip: Path
+) -> None:
     filler = fill(small_disk, leave=clip.stat().st_size + (24 << 10))  # room for the upload, not its results
     try:
         r = post(client, "/v1/jobs", clip)
@@ -114,8 +121,9 @@ def test_results_that_do_not_fit_fail_the_job_with_the_reason(client: httpx.Clie
     assert wait_done(client, ok.headers["location"], timeout=120)["status"] == "succeeded"
 
 
-def test_frames_zip_on_a_full_disk_is_507(client: httpx.Client, server: ServiceServer, small_disk: Path,
-                                          clip: Path) -> None:
+def test_frames_zip_on_a_full_disk_is_507(
+    client: httpx.Client, server: ServiceServer, small_disk: Path, clip: Path
+) -> None:
     r = post(client, "/v1/jobs", clip)
     assert r.status_code == 202, r.text
     job = wait_done(client, r.headers["location"], timeout=120)

@@ -27,20 +27,31 @@ EXAMPLES = 40  # per operation and mode: ~10 operations x 2 modes x 40 cases, we
 @pytest.fixture(scope="module")
 def fuzz_server(tmp_path_factory: pytest.TempPathFactory, random_weights: Path) -> Iterator[ServiceServer]:
     data = tmp_path_factory.mktemp("fuzz") / "data"
-    env = {"COLONLIGHT_WEIGHTS": str(random_weights), "COLONLIGHT_WORKERS": "1", "COLONLIGHT_QUEUE_SIZE": "4",
-           "COLONLIGHT_MAX_UPLOAD_MB": "1", "COLONLIGHT_SYNC_MAX_SECONDS": "2"}
+    env = {
+        "COLONLIGHT_WEIGHTS": str(random_weights),
+        "COLONLIGHT_WORKERS": "1",
+        "COLONLIGHT_QUEUE_SIZE": "4",
+        "COLONLIGHT_MAX_UPLOAD_MB": "1",
+        "COLONLIGHT_SYNC_MAX_SECONDS": "2",
+    }
     with ServiceServer(data, env) as srv:
         yield srv
 
 
-def fuzz_operation(operation, mode: GenerationMode, url: str, failures: list[str],  # type: ignore[no-untyped-def]
-                   seen: dict[str, set[int]]) -> None:
+def fuzz_operation(
+    operation,
+    mode: GenerationMode,
+    url: str,
+    failures: list[str],  # type: ignore[no-untyped-def]
+    seen: dict[str, set[int]],
+) -> None:
     """Send EXAMPLES generated requests for one operation; record failures instead of stopping at the first."""
     label = f"{operation.method.upper()} {operation.path}"
 
     @given(case=operation.as_strategy(generation_mode=mode))
-    @settings(max_examples=EXAMPLES, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True,
-              database=None)
+    @settings(
+        max_examples=EXAMPLES, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True, database=None
+    )
     def run(case) -> None:  # type: ignore[no-untyped-def]
         response = case.call(base_url=url, timeout=60)
         seen.setdefault(label, set()).add(response.status_code)

@@ -29,8 +29,13 @@ def clip(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory, random_weights: Path) -> Iterator[ServiceServer]:
     data = tmp_path_factory.mktemp("limits-server") / "data"
-    env = {"COLONLIGHT_WEIGHTS": str(random_weights), "COLONLIGHT_WORKERS": "1", "COLONLIGHT_QUEUE_SIZE": "1",
-           "COLONLIGHT_API_KEY": KEY, "COLONLIGHT_RETRY_AFTER_SECONDS": "7"}
+    env = {
+        "COLONLIGHT_WEIGHTS": str(random_weights),
+        "COLONLIGHT_WORKERS": "1",
+        "COLONLIGHT_QUEUE_SIZE": "1",
+        "COLONLIGHT_API_KEY": KEY,
+        "COLONLIGHT_RETRY_AFTER_SECONDS": "7",
+    }
     with ServiceServer(data, env) as srv:
         yield srv
 
@@ -72,9 +77,15 @@ def test_queue_full_is_503_with_retry_after(server: ServiceServer, clip: Path) -
 
 
 PROTECTED = [
-    ("POST", "/v1/jobs"), ("GET", "/v1/jobs/AAAAAAAAAAAAAAAAAAAAAA"), ("GET", "/v1/jobs/AAAAAAAAAAAAAAAAAAAAAA/video"),
-    ("GET", "/v1/jobs/AAAAAAAAAAAAAAAAAAAAAA/gammas"), ("GET", "/v1/jobs/AAAAAAAAAAAAAAAAAAAAAA/frames.zip"),
-    ("DELETE", "/v1/jobs/AAAAAAAAAAAAAAAAAAAAAA"), ("POST", "/v1/enhance"), ("GET", "/metrics"), ("GET", "/v1/info"),
+    ("POST", "/v1/jobs"),
+    ("GET", "/v1/jobs/AAAAAAAAAAAAAAAAAAAAAA"),
+    ("GET", "/v1/jobs/AAAAAAAAAAAAAAAAAAAAAA/video"),
+    ("GET", "/v1/jobs/AAAAAAAAAAAAAAAAAAAAAA/gammas"),
+    ("GET", "/v1/jobs/AAAAAAAAAAAAAAAAAAAAAA/frames.zip"),
+    ("DELETE", "/v1/jobs/AAAAAAAAAAAAAAAAAAAAAA"),
+    ("POST", "/v1/enhance"),
+    ("GET", "/metrics"),
+    ("GET", "/v1/info"),
     ("GET", "/openapi.json"),
 ]
 

@@ -9,14 +9,16 @@ import subprocess
 import sys
 from pathlib import Path
 
-from prometheus_client.parser import text_string_to_metric_families
-
 from colonlight_service.metrics import Metrics
+from prometheus_client.parser import text_string_to_metric_families
 
 
 def _samples(text: str) -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:
-    return {(s.name, tuple(sorted(s.labels.items()))): s.value
-            for family in text_string_to_metric_families(text) for s in family.samples}
+    return {
+        (s.name, tuple(sorted(s.labels.items()))): s.value
+        for family in text_string_to_metric_families(text)
+        for s in family.samples
+    }
 
 
 def test_render_is_standard_exposition_with_live_gauges() -> None:
@@ -63,8 +65,9 @@ def test_counts_of_several_worker_processes_are_summed(tmp_path: Path) -> None:
     env = {**os.environ, "PROMETHEUS_MULTIPROC_DIR": str(tmp_path)}
     for n in (5, 7):
         subprocess.run([sys.executable, "-c", WORKER, str(n), "-"], env=env, check=True, timeout=60)
-    out = subprocess.run([sys.executable, "-c", WORKER, "11", "render"], env=env, check=True, timeout=60,
-                         capture_output=True, text=True).stdout
+    out = subprocess.run(
+        [sys.executable, "-c", WORKER, "11", "render"], env=env, check=True, timeout=60, capture_output=True, text=True
+    ).stdout
     s = _samples(out)
     assert s[("colonlight_frames_processed_total", ())] == 5 + 7 + 11
     assert s[("colonlight_requests_rejected_total", (("reason", "too_large"),))] == 3

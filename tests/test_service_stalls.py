@@ -39,16 +39,23 @@ def clip(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory, random_weights: Path) -> Iterator[ServiceServer]:
     data = tmp_path_factory.mktemp("stalls-server") / "data"
-    env = {"COLONLIGHT_WEIGHTS": str(random_weights), "COLONLIGHT_WORKERS": "1", "COLONLIGHT_QUEUE_SIZE": "1",
-           "COLONLIGHT_MAX_UPLOADS": str(MAX_UPLOADS), "COLONLIGHT_UPLOAD_IDLE_SECONDS": str(IDLE_S),
-           "COLONLIGHT_UPLOAD_MIN_BYTES_PER_S": str(MIN_RATE)}
+    env = {
+        "COLONLIGHT_WEIGHTS": str(random_weights),
+        "COLONLIGHT_WORKERS": "1",
+        "COLONLIGHT_QUEUE_SIZE": "1",
+        "COLONLIGHT_MAX_UPLOADS": str(MAX_UPLOADS),
+        "COLONLIGHT_UPLOAD_IDLE_SECONDS": str(IDLE_S),
+        "COLONLIGHT_UPLOAD_MIN_BYTES_PER_S": str(MIN_RATE),
+    }
     with ServiceServer(data, env) as srv:
         yield srv
 
 
 def multipart_head(filename: str) -> bytes:
-    return (f"--{BOUNDARY}\r\nContent-Disposition: form-data; name=\"file\"; filename=\"{filename}\"\r\n"
-            "Content-Type: video/mp4\r\n\r\n").encode()
+    return (
+        f'--{BOUNDARY}\r\nContent-Disposition: form-data; name="file"; filename="{filename}"\r\n'
+        "Content-Type: video/mp4\r\n\r\n"
+    ).encode()
 
 
 def stalled_upload(server: ServiceServer, declared: int = 1_000_000) -> socket.socket:
@@ -57,7 +64,10 @@ def stalled_upload(server: ServiceServer, declared: int = 1_000_000) -> socket.s
     head = multipart_head("stall.mp4")
     sock.sendall(
         f"POST /v1/jobs HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: multipart/form-data; boundary={BOUNDARY}\r\n"
-        f"Content-Length: {declared}\r\n\r\n".encode() + head + b"\0" * (150 - len(head)))
+        f"Content-Length: {declared}\r\n\r\n".encode()
+        + head
+        + b"\0" * (150 - len(head))
+    )
     return sock
 
 
@@ -135,13 +145,14 @@ def test_slow_upload_that_keeps_progressing_is_not_cut_off(server: ServiceServer
     try:
         sock.sendall(
             f"POST /v1/jobs HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: multipart/form-data; boundary={BOUNDARY}\r\n"
-            f"Content-Length: {len(body)}\r\nConnection: close\r\n\r\n".encode())
+            f"Content-Length: {len(body)}\r\nConnection: close\r\n\r\n".encode()
+        )
         pieces = 6
         step = -(-len(body) // pieces)
         t0 = time.monotonic()
         for i in range(pieces):
             time.sleep(IDLE_S / 3)
-            sock.sendall(body[i * step:(i + 1) * step])
+            sock.sendall(body[i * step : (i + 1) * step])
         assert time.monotonic() - t0 > IDLE_S
         status, job, _ = read_response(sock, timeout=30)
     finally:

@@ -47,10 +47,15 @@ def weights(random_weights: Path) -> Path:
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory, weights: Path) -> Iterator[ServiceServer]:
-    env = {"COLONLIGHT_WEIGHTS": str(weights), "COLONLIGHT_WORKERS": "1", "COLONLIGHT_API_KEY": KEY,
-           "COLONLIGHT_STREAM_MAX": "2", "COLONLIGHT_STREAM_MAX_FRAME_MB": "1",
-           "COLONLIGHT_STREAM_IDLE_SECONDS": str(IDLE_S),
-           "COLONLIGHT_STREAM_SEND_TIMEOUT_SECONDS": str(SEND_TIMEOUT_S)}
+    env = {
+        "COLONLIGHT_WEIGHTS": str(weights),
+        "COLONLIGHT_WORKERS": "1",
+        "COLONLIGHT_API_KEY": KEY,
+        "COLONLIGHT_STREAM_MAX": "2",
+        "COLONLIGHT_STREAM_MAX_FRAME_MB": "1",
+        "COLONLIGHT_STREAM_IDLE_SECONDS": str(IDLE_S),
+        "COLONLIGHT_STREAM_SEND_TIMEOUT_SECONDS": str(SEND_TIMEOUT_S),
+    }
     srv = ServiceServer(tmp_path_factory.mktemp("stream") / "data", env).start(timeout=START_TIMEOUT_S)
     try:
         yield srv
@@ -67,8 +72,15 @@ def open_stream(srv: ServiceServer, key: str | None = KEY, **headers: str) -> Cl
     hdrs = dict(headers)
     if key is not None:
         hdrs["X-API-Key"] = key
-    return connect(ws_url(srv), additional_headers=hdrs, proxy=None, max_size=None, compression=None,
-                   open_timeout=20, close_timeout=5)
+    return connect(
+        ws_url(srv),
+        additional_headers=hdrs,
+        proxy=None,
+        max_size=None,
+        compression=None,
+        open_timeout=20,
+        close_timeout=5,
+    )
 
 
 def recv_json(ws: ClientConnection, timeout: float = 60) -> dict[str, Any]:
@@ -119,6 +131,7 @@ def decode(data: bytes) -> np.ndarray:
 
 def png_bomb(width: int, height: int) -> bytes:
     """A valid grey PNG of ``width x height`` zeros: tens of kB that would decode to ``width * height * 3`` bytes."""
+
     def chunk(kind: bytes, body: bytes) -> bytes:
         return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
 
@@ -306,10 +319,12 @@ def test_a_message_over_the_size_limit_closes_with_1009(server: ServiceServer) -
 
 
 def test_bad_start_options_close_with_1008(server: ServiceServer) -> None:
-    for options, text in (({"method": "magic"}, "unknown method 'magic'"),
-                          ({"quality": 500}, "quality"),
-                          ({"gamma": 2.0}, "gamma applies only to method gamma"),
-                          ({"colour": "blue"}, "colour")):
+    for options, text in (
+        ({"method": "magic"}, "unknown method 'magic'"),
+        ({"quality": 500}, "quality"),
+        ({"gamma": 2.0}, "gamma applies only to method gamma"),
+        ({"colour": "blue"}, "colour"),
+    ):
         with open_stream(server) as ws:
             ws.send(json.dumps({"type": "start", **options}))
             code, reason, messages = closed_with(ws)
@@ -359,9 +374,13 @@ def raw_client(srv: ServiceServer) -> socket.socket:
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 64 * 1024)
     sock.connect(("127.0.0.1", srv.port))
     key = base64.b64encode(b"0123456789abcdef").decode()
-    sock.sendall((f"GET /v1/stream HTTP/1.1\r\nHost: 127.0.0.1:{srv.port}\r\nUpgrade: websocket\r\n"
-                  f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
-                  f"X-API-Key: {KEY}\r\n\r\n").encode())
+    sock.sendall(
+        (
+            f"GET /v1/stream HTTP/1.1\r\nHost: 127.0.0.1:{srv.port}\r\nUpgrade: websocket\r\n"
+            f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+            f"X-API-Key: {KEY}\r\n\r\n"
+        ).encode()
+    )
     response = b""
     while b"\r\n\r\n" not in response:
         response += sock.recv(1)  # byte by byte: nothing past the handshake is read
@@ -423,8 +442,14 @@ def test_the_readme_example_client_works(server: ServiceServer, tmp_path: Path) 
     script.write_text("# stream_client.py" + code)
     clip = make_clip(tmp_path / "clip.mp4", n_frames=12, size=(160, 120))
     env = {**os.environ, "COLONLIGHT_API_KEY": KEY}
-    run = subprocess.run([sys.executable, str(script), str(clip), ws_url(server)], cwd=tmp_path, env=env,
-                         capture_output=True, text=True, timeout=90)
+    run = subprocess.run(
+        [sys.executable, str(script), str(clip), ws_url(server)],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=90,
+    )
     assert run.returncode == 0, run.stderr
     lines = [json.loads(line) for line in run.stdout.splitlines()]
     assert lines[0]["type"] == "ready" and lines[-1] == {"type": "end", "frames": 12, "errors": 0}

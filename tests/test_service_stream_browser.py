@@ -36,8 +36,11 @@ def server(tmp_path_factory: pytest.TempPathFactory, random_weights: Path) -> It
 
 def frames_processed(srv: ServiceServer) -> int:
     text = httpx.get(srv.url + "/metrics", headers={"X-API-Key": KEY}, timeout=10).text
-    return int(float(next(line for line in text.splitlines() if line.startswith("colonlight_frames_processed_total"))
-                     .split()[1]))
+    return int(
+        float(
+            next(line for line in text.splitlines() if line.startswith("colonlight_frames_processed_total")).split()[1]
+        )
+    )
 
 
 CANVAS_MEAN = """() => { const c = document.querySelector('#live-out');

@@ -9,11 +9,11 @@ from pathlib import Path
 
 import cv2
 import pytest
+from colonlight_cli.main import app
 from typer.testing import CliRunner
 
 from colonlight.errors import InputError
 from colonlight.slam_layout import camera_for_frames, parse_camera, rescale_camera
-from colonlight_cli.main import app
 
 from .media import make_clip, make_vfr_clip, needs_ffmpeg, read_index, vfr_times
 
@@ -45,8 +45,9 @@ def _tum(path: Path) -> list[tuple[float, str]]:
 def test_variable_frame_rate_clip_keeps_its_own_timestamps(tmp_path: Path, random_weights: Path) -> None:
     make_vfr_clip(tmp_path / "v" / "vfr.mp4", vfr_times(30))  # in a 1/1000 s time base
     times = [round(t / Fraction(1, 1000)) / 1000 for t in vfr_times(30)]
-    code, out = invoke("enhance", tmp_path / "v" / "vfr.mp4", "-o", tmp_path / "o", "--fps", "0",
-                       "--weights", random_weights, "-q")
+    code, out = invoke(
+        "enhance", tmp_path / "v" / "vfr.mp4", "-o", tmp_path / "o", "--fps", "0", "--weights", random_weights, "-q"
+    )
     assert code == 0, out
     clip = tmp_path / "o" / "vfr"
     dso = _times(clip / "times.txt")
@@ -65,8 +66,19 @@ def test_resampled_clip_lists_each_frame_at_its_source_time_and_copies_the_camer
     cam = tmp_path / "calib" / "camera.txt"
     cam.parent.mkdir()
     cam.write_text(DSO_PINHOLE)
-    code, out = invoke("enhance", tmp_path / "c25.mp4", "-o", tmp_path / "o", "--method", "none",
-                       "--camera", cam, "-q", "--format", "png")
+    code, out = invoke(
+        "enhance",
+        tmp_path / "c25.mp4",
+        "-o",
+        tmp_path / "o",
+        "--method",
+        "none",
+        "--camera",
+        cam,
+        "-q",
+        "--format",
+        "png",
+    )
     assert code == 0, out
     clip = tmp_path / "o" / "c25"
     dso, tum = _times(clip / "times.txt"), _tum(clip / "rgb.txt")
@@ -82,7 +94,10 @@ def test_resampled_clip_lists_each_frame_at_its_source_time_and_copies_the_camer
     # Another camera redoes the clip (it is part of its settings); no camera removes the copy.
     colmap = tmp_path / "calib" / "cameras.txt"
     colmap.write_text("1 PINHOLE 128 96 100 100 64 48\n")
-    assert invoke("enhance", tmp_path / "c25.mp4", "-o", tmp_path / "o", "--method", "none", "--camera", colmap, "-q")[0] == 0
+    assert (
+        invoke("enhance", tmp_path / "c25.mp4", "-o", tmp_path / "o", "--method", "none", "--camera", colmap, "-q")[0]
+        == 0
+    )
     assert (clip / "cameras.txt").read_bytes() == colmap.read_bytes() and not (clip / "camera.txt").exists()
     assert invoke("enhance", tmp_path / "c25.mp4", "-o", tmp_path / "o", "--method", "none", "-q")[0] == 0
     assert not (clip / "cameras.txt").exists() and (clip / "times.txt").is_file()
@@ -90,20 +105,44 @@ def test_resampled_clip_lists_each_frame_at_its_source_time_and_copies_the_camer
 
 def test_video_only_output_has_times_but_no_rgb_list(tmp_path: Path, random_weights: Path) -> None:
     make_vfr_clip(tmp_path / "a.mp4", [0.0, 0.05, 0.1, 0.2])
-    code, out = invoke("enhance", tmp_path / "a.mp4", "-o", tmp_path / "o", "--no-frames", "--video", "--fps", "0",
-                       "--weights", random_weights, "-q")
+    code, out = invoke(
+        "enhance",
+        tmp_path / "a.mp4",
+        "-o",
+        tmp_path / "o",
+        "--no-frames",
+        "--video",
+        "--fps",
+        "0",
+        "--weights",
+        random_weights,
+        "-q",
+    )
     assert code == 0, out
     assert [t for _, t in _times(tmp_path / "o" / "a" / "times.txt")] == pytest.approx([0.0, 0.05, 0.1, 0.2])
     assert not (tmp_path / "o" / "a" / "rgb.txt").exists()
 
 
-def test_camera_for_another_size_fails_that_clip_before_anything_is_written(tmp_path: Path, random_weights: Path) -> None:
+def test_camera_for_another_size_fails_that_clip_before_anything_is_written(
+    tmp_path: Path, random_weights: Path
+) -> None:
     make_vfr_clip(tmp_path / "in" / "small.mp4", vfr_times(6))  # 128x96
     make_vfr_clip(tmp_path / "in" / "big.mp4", vfr_times(6), size=(160, 120))
     cam = tmp_path / "camera.txt"
     cam.write_text(DSO_PINHOLE)
-    code, out = invoke("enhance", tmp_path / "in", "-o", tmp_path / "o", "--fps", "0", "--camera", cam,
-                       "--weights", random_weights, "-q")
+    code, out = invoke(
+        "enhance",
+        tmp_path / "in",
+        "-o",
+        tmp_path / "o",
+        "--fps",
+        "0",
+        "--camera",
+        cam,
+        "--weights",
+        random_weights,
+        "-q",
+    )
     assert code == 1
     assert "calibrated for 128x96 images, but this clip's frames are 160x120" in out and "Traceback" not in out
     assert not (tmp_path / "o" / "big" / "frames").exists() and not (tmp_path / "o" / "big" / "gammas.json").exists()
@@ -116,7 +155,9 @@ def test_malformed_or_missing_camera_file_is_a_usage_error(tmp_path: Path) -> No
     bad.write_text("Pinhole 1 2 3\n128 96\nnone\n128 96\n")
     code, out = invoke("enhance", tmp_path / "a.mp4", "-o", tmp_path / "o", "--camera", bad, "-m", "none")
     assert code == 2 and str(bad) in out and "Pinhole takes 5 parameters" in out and "Traceback" not in out
-    code, out = invoke("enhance", tmp_path / "a.mp4", "-o", tmp_path / "o", "--camera", tmp_path / "nope.txt", "-m", "none")
+    code, out = invoke(
+        "enhance", tmp_path / "a.mp4", "-o", tmp_path / "o", "--camera", tmp_path / "nope.txt", "-m", "none"
+    )
     assert code == 2 and "nope.txt" in out and "cannot read the camera file" in out
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").rglob("*.png"))
 
@@ -145,7 +186,11 @@ def test_dso_rescale_keeps_each_ray_at_the_same_place_in_the_image(prefix: str) 
 def test_dso_relative_radtan_and_fov_keep_their_parameters() -> None:
     radtan = parse_camera("0.5 0.6 0.49 0.51 -0.2 0.05 0.001 0.0\n640 480\ncrop\n512 384\n", "r.txt")
     assert rescale_camera(radtan, (1280, 960)).splitlines() == [
-        "0.5 0.6 0.49 0.51 -0.2 0.05 0.001 0", "1280 960", "crop", "1024 768"]
+        "0.5 0.6 0.49 0.51 -0.2 0.05 0.001 0",
+        "1280 960",
+        "crop",
+        "1024 768",
+    ]
     fov = parse_camera("FOV 300 300 319.5 239.5 0.9\n640 480\n0.5 0.6 0.5 0.5 0\n640 480\n", "f.txt")
     first, *rest = rescale_camera(fov, (320, 240)).splitlines()
     assert first == "FOV 150 150 159.5 119.5 0.9" and rest == ["320 240", "0.5 0.6 0.5 0.5 0", "320 240"]
@@ -166,7 +211,9 @@ def test_camera_for_frames_copies_as_is_or_rescales_from_the_source_size() -> No
     cam = parse_camera(COLMAP_TWO, "cameras.txt")
     assert camera_for_frames(cam, (640, 480)) == COLMAP_TWO
     assert camera_for_frames(cam, (320, 240), source_size=(640, 480)) == rescale_camera(cam, (320, 240))
-    with pytest.raises(InputError, match=r"cameras.txt: calibrated for 640x480 images, but this clip's frames are 128x96"):
+    with pytest.raises(
+        InputError, match=r"cameras.txt: calibrated for 640x480 images, but this clip's frames are 128x96"
+    ):
         camera_for_frames(cam, (128, 96))
     with pytest.raises(InputError, match="not a valid COLMAP"):
         parse_camera("1 PINHOLE 640 480 500 500 320\n", "c.txt")
@@ -174,12 +221,15 @@ def test_camera_for_frames_copies_as_is_or_rescales_from_the_source_size() -> No
         parse_camera("Pinhole 1 1 1 1 0\n640 480\n", "d.txt")
 
 
-@pytest.mark.parametrize("line", [
-    "1 OPENCV 640 480 500 510 320.5 240.25 0.1 -0.05 0.001 0.002",
-    "1 SIMPLE_RADIAL 640 480 480 319 241 0.02",
-    "1 PINHOLE 1350 1080 900 905 674.5 539.5",
-    "1 OPENCV_FISHEYE 1350 1080 600 601 676 541 0.1 0.01 -0.002 0.0003",
-])
+@pytest.mark.parametrize(
+    "line",
+    [
+        "1 OPENCV 640 480 500 510 320.5 240.25 0.1 -0.05 0.001 0.002",
+        "1 SIMPLE_RADIAL 640 480 480 319 241 0.02",
+        "1 PINHOLE 1350 1080 900 905 674.5 539.5",
+        "1 OPENCV_FISHEYE 1350 1080 600 601 676 541 0.1 0.01 -0.002 0.0003",
+    ],
+)
 def test_colmap_rescale_agrees_with_colmaps_own(line: str) -> None:
     pycolmap = pytest.importorskip("pycolmap", reason="pycolmap (the eval extra) is not installed")
     _, model, w, h, *params = line.split()

@@ -24,8 +24,11 @@ def test_kind_of_each_path(tmp_path: Path) -> None:
     (tmp_path / "file.bin").write_bytes(b"x")
     assert clip_kind(tmp_path / "file.bin") == "video"  # a file is a video until decoding says otherwise
     assert clip_kind(tmp_path / "frames") == "frames"
-    for name, cause in (("empty", "folder holds no frame images"), ("missing", "no such file or folder"),
-                        ("fifo", "not a regular file or folder")):
+    for name, cause in (
+        ("empty", "folder holds no frame images"),
+        ("missing", "no such file or folder"),
+        ("fifo", "not a regular file or folder"),
+    ):
         with pytest.raises(InputError) as err:
             clip_kind(tmp_path / name)
         assert str(err.value) == f"{tmp_path / name}: {cause}"

@@ -9,8 +9,12 @@ import pytest
 
 
 def _modules_after(code: str) -> set[str]:
-    out = subprocess.run([sys.executable, "-c", f"{code}\nimport sys\nprint(' '.join(sys.modules))"],
-                         capture_output=True, text=True, check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", f"{code}\nimport sys\nprint(' '.join(sys.modules))"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     return set(out.stdout.split())
 
 
@@ -38,8 +42,10 @@ def test_cli_import_leaves_out_training_evaluation_and_service() -> None:
 
 
 def test_is_available_imports_only_the_method_asked_for() -> None:
-    mods = _modules_after("from colonlight.methods import is_available; assert is_available('none')\n"
-                          "assert not is_available('no-such-method')")
+    mods = _modules_after(
+        "from colonlight.methods import is_available; assert is_available('none')\n"
+        "assert not is_available('no-such-method')"
+    )
     assert "colonlight.methods.identity" in mods
     assert not {"colonlight.methods.zerodce", "colonlight.methods.deflicker", "torch"} & mods
 

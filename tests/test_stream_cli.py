@@ -125,7 +125,9 @@ def _check_log(records: list[dict], fps_choice: list[int] | None = None) -> None
         assert {"index", "source_time_s", "arrival", "output", "latency_ms", "gamma"} <= set(r)
         assert r["output"] >= r["arrival"] and abs((r["output"] - r["arrival"]) * 1000 - r["latency_ms"]) < 0.01
     if fps_choice is not None:  # the chosen source frame is FFmpeg's choice for that output index
-        assert all(round(r["source_time_s"] * SRC_FPS) % 90 == fps_choice[r["index"] % len(fps_choice)] for r in records[:40])
+        assert all(
+            round(r["source_time_s"] * SRC_FPS) % 90 == fps_choice[r["index"] % len(fps_choice)] for r in records[:40]
+        )
 
 
 # ---------------------------------------------------------------------------------------------- network
@@ -135,9 +137,12 @@ def test_udp_mpegts_stream(tmp_path: Path, live_clip: Path, random_weights: Path
     # weights with the paper's head (two seed frames), so that the seed count shows one state for the stream
     port = _port(socket.SOCK_DGRAM)
     out = tmp_path / "out"
-    proc = subprocess.Popen(_colonlight(f"udp://127.0.0.1:{port}", "-o", str(out), "--timeout", "1.5",
-                                        "--weights", str(random_weights)),
-                            env=_env(), stderr=subprocess.PIPE, stdout=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        _colonlight(f"udp://127.0.0.1:{port}", "-o", str(out), "--timeout", "1.5", "--weights", str(random_weights)),
+        env=_env(),
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+    )
     err = Stderr(proc)
     err.wait_for("waiting for frames")
     sender = _ffmpeg("-re", "-i", str(live_clip), "-c", "copy", "-f", "mpegts", f"udp://127.0.0.1:{port}?pkt_size=1316")
@@ -157,8 +162,19 @@ def test_udp_mpegts_stream(tmp_path: Path, live_clip: Path, random_weights: Path
 
 def _http_server(clip: Path, port: int) -> subprocess.Popen[bytes]:
     """ffmpeg as an HTTP server: waits for one client, sends the clip in real time, exits."""
-    return _ffmpeg("-re", "-i", str(clip), "-c", "copy", "-f", "mpegts", "-listen", "1", f"http://127.0.0.1:{port}/live.ts",
-                   stderr=subprocess.DEVNULL)
+    return _ffmpeg(
+        "-re",
+        "-i",
+        str(clip),
+        "-c",
+        "copy",
+        "-f",
+        "mpegts",
+        "-listen",
+        "1",
+        f"http://127.0.0.1:{port}/live.ts",
+        stderr=subprocess.DEVNULL,
+    )
 
 
 def test_http_source_that_stops_and_comes_back_reconnects_with_state_kept(
@@ -169,9 +185,21 @@ def test_http_source_that_stops_and_comes_back_reconnects_with_state_kept(
     out = tmp_path / "out"
     server = _http_server(live_clip, port)
     proc = subprocess.Popen(
-        _colonlight(f"http://127.0.0.1:{port}/live.ts", "-o", str(out), "--reconnect", "--timeout", "2", "--keep", "20",
-                    "--weights", str(random_weights)),
-        env=_env(), stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
+        _colonlight(
+            f"http://127.0.0.1:{port}/live.ts",
+            "-o",
+            str(out),
+            "--reconnect",
+            "--timeout",
+            "2",
+            "--keep",
+            "20",
+            "--weights",
+            str(random_weights),
+        ),
+        env=_env(),
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
     )
     err = Stderr(proc)
     try:
@@ -227,8 +255,13 @@ def test_stdin_pipe_in_y4m_out(tmp_path: Path, live_clip: Path, fps_choice: list
     FFmpeg's fps=18 picks for its index (the log says which indices were output)."""
     out = tmp_path / "out"
     r, w = os.pipe()
-    proc = subprocess.Popen(_colonlight("-", "--pipe", "y4m", "-o", str(out), "-m", "none", "--no-frames"),
-                            env=_env(), stdin=r, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        _colonlight("-", "--pipe", "y4m", "-o", str(out), "-m", "none", "--no-frames"),
+        env=_env(),
+        stdin=r,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     os.close(r)
     err = Stderr(proc)
     err.wait_for("waiting for frames")
@@ -245,12 +278,32 @@ def test_stdin_pipe_in_y4m_out(tmp_path: Path, live_clip: Path, fps_choice: list
 
 
 def test_file_to_mpegts_pipe(tmp_path: Path, live_clip: Path, fps_choice: list[int]) -> None:
-    proc = subprocess.run(_colonlight(str(live_clip), "--pipe", "mpegts", "-m", "none", "-q"), env=_env(),
-                          capture_output=True, timeout=120)
+    proc = subprocess.run(
+        _colonlight(str(live_clip), "--pipe", "mpegts", "-m", "none", "-q"),
+        env=_env(),
+        capture_output=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr.decode()
     decoded = subprocess.run(
-        [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-f", "mpegts", "-i", "-", "-f", "rawvideo",
-         "-pix_fmt", "rgb24", "-"], input=proc.stdout, capture_output=True, check=True,
+        [
+            ffmpeg_exe(),
+            "-hide_banner",
+            "-loglevel",
+            "error",
+            "-f",
+            "mpegts",
+            "-i",
+            "-",
+            "-f",
+            "rawvideo",
+            "-pix_fmt",
+            "rgb24",
+            "-",
+        ],
+        input=proc.stdout,
+        capture_output=True,
+        check=True,
     )
     frames = np.frombuffer(decoded.stdout, np.uint8).reshape(-1, 96, 128, 3)
     assert [read_index(f) for f in frames] == fps_choice  # a file read as fast as possible: no frame dropped
@@ -283,8 +336,13 @@ def test_slow_consumer_drops_counted_memory_flat(tmp_path: Path) -> None:
     clip = make_clip(tmp_path / "vga.ts", 240, SRC_FPS, (640, 480), codec_args=(*X264, "-g", "15"))
     out = tmp_path / "out"
     r, w = os.pipe()
-    proc = subprocess.Popen(_colonlight("-", "--pipe", "y4m", "-o", str(out), "--no-frames", "-m", "none"),
-                            env=_env(), stdin=r, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        _colonlight("-", "--pipe", "y4m", "-o", str(out), "--no-frames", "-m", "none"),
+        env=_env(),
+        stdin=r,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     os.close(r)
     err = Stderr(proc)
     consumer = subprocess.Popen([sys.executable, "-c", SLOW_READER], stdin=proc.stdout, stdout=subprocess.PIPE)
@@ -320,7 +378,9 @@ def test_file_stream_matches_enhance(tmp_path: Path, live_clip: Path) -> None:
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # as the CLI runs the small network (two spinning OpenMP threads crawl on a busy machine)
     out = tmp_path / "stream"
-    proc = subprocess.run(_colonlight(str(live_clip), "-o", str(out), "-q"), env=_env(), capture_output=True, timeout=120)
+    proc = subprocess.run(
+        _colonlight(str(live_clip), "-o", str(out), "-q"), env=_env(), capture_output=True, timeout=120
+    )
     assert proc.returncode == 0, proc.stderr.decode()
     try:
         enhance_clip(live_clip, tmp_path / "enh", create_method("rnn", device="cpu"), ClipOptions(format="jpg"))
@@ -337,9 +397,13 @@ def test_file_stream_matches_enhance(tmp_path: Path, live_clip: Path) -> None:
 
 def test_absent_device_and_refused_connection_are_one_line_errors(tmp_path: Path) -> None:
     out = tmp_path / "out"
-    for src, cause in (("/dev/video97", "/dev/video97: no such capture device ("),
-                       (f"tcp://127.0.0.1:{_port()}", "cannot open (Connection refused)")):
-        proc = subprocess.run(_colonlight(src, "-o", str(out), "-m", "none"), env=_env(), capture_output=True, timeout=60)
+    for src, cause in (
+        ("/dev/video97", "/dev/video97: no such capture device ("),
+        (f"tcp://127.0.0.1:{_port()}", "cannot open (Connection refused)"),
+    ):
+        proc = subprocess.run(
+            _colonlight(src, "-o", str(out), "-m", "none"), env=_env(), capture_output=True, timeout=60
+        )
         err = proc.stderr.decode()
         assert proc.returncode == 1 and cause in err and "Traceback" not in err, err
         assert len([line for line in err.splitlines() if line.startswith("error:")]) == 1
@@ -357,7 +421,9 @@ def test_outputs_of_an_earlier_stream_are_not_mixed(tmp_path: Path, live_clip: P
     assert subprocess.run(_colonlight(*args), env=_env(), capture_output=True, timeout=60).returncode == 0
     again = subprocess.run(_colonlight(*args), env=_env(), capture_output=True, timeout=60)
     assert again.returncode == 1 and b"already holds a stream's outputs" in again.stderr
-    assert subprocess.run(_colonlight(*args, "--overwrite"), env=_env(), capture_output=True, timeout=60).returncode == 0
+    assert (
+        subprocess.run(_colonlight(*args, "--overwrite"), env=_env(), capture_output=True, timeout=60).returncode == 0
+    )
 
 
 def test_stream_benchmark_short_version(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -376,8 +442,12 @@ def test_stream_benchmark_short_version(tmp_path: Path, monkeypatch: pytest.Monk
 def test_realtime_file_is_paced_at_its_own_rate(tmp_path: Path, live_clip: Path) -> None:
     """--realtime releases each frame no earlier than its time: arrivals span at least the clip's 3 s."""
     out = tmp_path / "out"
-    proc = subprocess.run(_colonlight(str(live_clip), "--realtime", "-o", str(out), "-m", "none", "--no-frames", "-q"),
-                          env=_env(), capture_output=True, timeout=120)
+    proc = subprocess.run(
+        _colonlight(str(live_clip), "--realtime", "-o", str(out), "-m", "none", "--no-frames", "-q"),
+        env=_env(),
+        capture_output=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr.decode()
     records = _log(out)
     first, last = records[0], records[-1]
@@ -389,12 +459,31 @@ def test_raw_h264_on_stdin_without_timestamps(tmp_path: Path, live_clip: Path, f
     its SPS), so the choice at 18 fps is the same as for the clip with timestamps. `--drop never`: a pipe fed as
     fast as possible loses nothing."""
     raw = tmp_path / "live.h264"
-    subprocess.run([ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-i", str(live_clip), "-c", "copy", "-f", "h264",
-                    str(raw)], check=True)
+    subprocess.run(
+        [
+            ffmpeg_exe(),
+            "-hide_banner",
+            "-loglevel",
+            "error",
+            "-i",
+            str(live_clip),
+            "-c",
+            "copy",
+            "-f",
+            "h264",
+            str(raw),
+        ],
+        check=True,
+    )
     out = tmp_path / "out"
     with open(raw, "rb") as fh:
-        proc = subprocess.run(_colonlight("-", "-o", str(out), "-m", "none", "--drop", "never", "-q"), env=_env(),
-                              stdin=fh, capture_output=True, timeout=120)
+        proc = subprocess.run(
+            _colonlight("-", "-o", str(out), "-m", "none", "--drop", "never", "-q"),
+            env=_env(),
+            stdin=fh,
+            capture_output=True,
+            timeout=120,
+        )
     assert proc.returncode == 0, proc.stderr.decode()
     found = _frames_index(out)
     assert [found[k] for k in sorted(found)] == fps_choice

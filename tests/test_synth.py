@@ -206,8 +206,7 @@ def test_make_dataset_parallel_and_resume(tmp_path: Path) -> None:
 
 def test_make_dataset_mixes_in_steady_clips_by_seed(tmp_path: Path) -> None:
     def steady(fraction: float, where: Path) -> list[bool]:
-        dirs = make_dataset(where, 12, seed=40, width=32, height=32, n_frames=3, workers=1,
-                            steady_fraction=fraction)
+        dirs = make_dataset(where, 12, seed=40, width=32, height=32, n_frames=3, workers=1, steady_fraction=fraction)
         return [json.loads((d / "synth.json").read_text())["config"]["steady"] for d in dirs]
 
     mixed = steady(0.5, tmp_path / "a")
@@ -217,8 +216,17 @@ def test_make_dataset_mixes_in_steady_clips_by_seed(tmp_path: Path) -> None:
 
 def test_make_dataset_forces_close_occluders_by_seed(tmp_path: Path) -> None:
     def modes(fraction: float, where: Path) -> list[str]:
-        dirs = make_dataset(where, 12, seed=40, width=32, height=32, n_frames=3, workers=1,
-                            steady_fraction=0.5, occluder_fraction=fraction)
+        dirs = make_dataset(
+            where,
+            12,
+            seed=40,
+            width=32,
+            height=32,
+            n_frames=3,
+            workers=1,
+            steady_fraction=0.5,
+            occluder_fraction=fraction,
+        )
         return [json.loads((d / "synth.json").read_text())["config"]["close_occluder"] for d in dirs]
 
     mixed = modes(0.5, tmp_path / "a")
@@ -275,8 +283,17 @@ def test_frame_to_frame_flicker_has_the_configured_spread_and_spares_the_seeds()
     from colonlight.synth.disturb import plan_lighting
 
     n = 400
-    cfg = _cfg(9, n_frames=n, gain_rate_hz=0.0, contrast_rate_hz=0.0, ae_strength=0.0, flicker_gain=0.1,
-               flicker_contrast=0.05, flicker_corr=0.5, undisturbed_seeds=True)
+    cfg = _cfg(
+        9,
+        n_frames=n,
+        gain_rate_hz=0.0,
+        contrast_rate_hz=0.0,
+        ae_strength=0.0,
+        flicker_gain=0.1,
+        flicker_contrast=0.05,
+        flicker_corr=0.5,
+        undisturbed_seeds=True,
+    )
     sched = plan_lighting(cfg, np.random.default_rng(0), np.full(n, 0.2), np.full(n, 0.5))
     assert np.all(sched.gain[:2] == 1.0) and np.all(sched.contrast[:2] == 1.0)
     lg, lk = np.log(sched.gain[2:]), np.log(sched.contrast[2:])
@@ -289,8 +306,17 @@ def test_fast_heavily_damped_auto_exposure_stays_stable() -> None:
     from colonlight.synth.disturb import plan_lighting
 
     n = 200
-    cfg = _cfg(10, n_frames=n, gain_rate_hz=0.0, contrast_rate_hz=0.0, flicker_gain=0.0, flicker_contrast=0.0,
-               ae_strength=1.0, ae_speed=0.9, ae_damping=1.2)
+    cfg = _cfg(
+        10,
+        n_frames=n,
+        gain_rate_hz=0.0,
+        contrast_rate_hz=0.0,
+        flicker_gain=0.0,
+        flicker_contrast=0.0,
+        ae_strength=1.0,
+        ae_speed=0.9,
+        ae_damping=1.2,
+    )
     mean = np.where(np.arange(n) < 100, 0.1, 0.3)  # a step in scene brightness
     sched = plan_lighting(cfg, np.random.default_rng(0), mean, mean * 2)
     le = np.log(sched.exposure)

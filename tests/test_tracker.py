@@ -229,9 +229,7 @@ def gain_jump_clip() -> dict[str, object]:
     jumped = range(8, 14)
 
     def scaled(imgs: list[np.ndarray], g: float) -> list[np.ndarray]:
-        return [
-            np.clip(np.rint(f * g), 0, 255).astype(np.uint8) if i in jumped else f for i, f in enumerate(imgs)
-        ]
+        return [np.clip(np.rint(f * g), 0, 255).astype(np.uint8) if i in jumped else f for i, f in enumerate(imgs)]
 
     gained = scaled(clean, 0.6)
     return {

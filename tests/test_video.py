@@ -226,12 +226,8 @@ def test_selector_float_rates_snap_to_ntsc_fractions() -> None:
 
 
 @needs_ffmpeg
-@pytest.mark.parametrize(
-    ("degrees", "hflip"), [(90, False), (-90, False), (180, False), (90, True), (0, True)]
-)
-def test_rotation_metadata_gives_upright_frames_like_ffmpeg(
-    tmp_path: Path, degrees: int, hflip: bool
-) -> None:
+@pytest.mark.parametrize(("degrees", "hflip"), [(90, False), (-90, False), (180, False), (90, True), (0, True)])
+def test_rotation_metadata_gives_upright_frames_like_ffmpeg(tmp_path: Path, degrees: int, hflip: bool) -> None:
     src = make_clip(tmp_path / "landscape.mp4", 6, 25, size=(160, 96))
     path = with_rotation(src, tmp_path / "phone.mp4", degrees, hflip)
     reference = list(ffmpeg_frames(path))
@@ -327,9 +323,7 @@ def _assert_one_line_naming(err: BaseException, path: Path) -> None:
         (lambda d: d, "directory"),
     ],
 )
-def test_bad_inputs_raise_one_line_input_errors(
-    tmp_path: Path, make: Callable[[Path], Path], cause: str
-) -> None:
+def test_bad_inputs_raise_one_line_input_errors(tmp_path: Path, make: Callable[[Path], Path], cause: str) -> None:
     path = make(tmp_path)
     with pytest.raises(InputError) as err:
         next(iter_video_frames(path))
@@ -382,9 +376,7 @@ def test_unreadable_file(clips: dict[str, Path], tmp_path: Path) -> None:
         probe_video(p)
 
 
-def test_permission_errors_from_ffmpeg_become_input_errors(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_permission_errors_from_ffmpeg_become_input_errors(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The same path as above, for machines where the tests run as root."""
     p = text_file(tmp_path / "locked.mp4")
 
@@ -480,10 +472,9 @@ def test_writer_pads_odd_sizes_and_keeps_colours(tmp_path: Path) -> None:
 
 def test_writer_leaves_nothing_on_error_or_abort(tmp_path: Path) -> None:
     path = tmp_path / "failed.mp4"
-    with pytest.raises(KeyError):
-        with VideoWriter(path, fps=18) as w:
-            w.write(index_frame(0))
-            raise KeyError("boom")
+    with pytest.raises(KeyError), VideoWriter(path, fps=18) as w:
+        w.write(index_frame(0))
+        raise KeyError("boom")
     w2 = VideoWriter(path, fps=18)
     w2.write(index_frame(0))
     w2.abort()
@@ -497,10 +488,9 @@ def test_writer_leaves_nothing_on_error_or_abort(tmp_path: Path) -> None:
 
 def test_writer_rejects_bad_frames(tmp_path: Path) -> None:
     path = tmp_path / "bad.mp4"
-    with pytest.raises(InputError):
-        with VideoWriter(path, fps=18) as w:
-            w.write(index_frame(0))
-            w.write(index_frame(1, 64, 48))
+    with pytest.raises(InputError), VideoWriter(path, fps=18) as w:
+        w.write(index_frame(0))
+        w.write(index_frame(1, 64, 48))
     with pytest.raises(InputError):
         VideoWriter(path, fps=18).write(np.zeros((8, 8), np.uint8))
     assert list(tmp_path.iterdir()) == []

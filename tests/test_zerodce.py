@@ -147,12 +147,7 @@ def test_losses_match_the_official_code(shape: tuple[int, ...]) -> None:
     torch.testing.assert_close(colour_constancy_loss(enh), _official_col(enh))
     torch.testing.assert_close(illumination_smoothness_loss(alphas), _official_tv(alphas))
     total, terms = zerodce_loss(org, enh, alphas)  # the training script's weights
-    want = (
-        _official_spa(org, enh)
-        + 10 * _official_exp(enh)
-        + 5 * _official_col(enh)
-        + 200 * _official_tv(alphas)
-    )
+    want = _official_spa(org, enh) + 10 * _official_exp(enh) + 5 * _official_col(enh) + 200 * _official_tv(alphas)
     torch.testing.assert_close(total, want)
     assert set(terms) == {"spatial", "exposure", "colour_constancy", "illumination_smoothness"}
     total, terms = zerodce_loss(org, enh, alphas, LossWeights.for_variant("zerodce", colour_constancy=0.0))
@@ -175,9 +170,7 @@ def test_loss_values_on_simple_inputs() -> None:
 # ---------- weights files ----------
 
 
-def test_missing_default_weights_raise_checkpoint_error(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_missing_default_weights_raise_checkpoint_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(zd.DEFAULT_WEIGHTS, "zerodce", tmp_path / "nope.safetensors")
     monkeypatch.setitem(zd.DEFAULT_WEIGHTS, "zerodce++", tmp_path / "nope++.safetensors")
     with pytest.raises(CheckpointError, match="missing"):
@@ -291,9 +284,7 @@ def test_training_lowers_the_loss_and_writes_weights_and_card(tmp_path: Path) ->
         frames, variant="zerodce++", epochs=3, batch=8, size=32, seed=0, out_path=tmp_path / "pp.safetensors"
     )
     assert pp.history[-1].loss < pp.history[0].loss
-    assert (
-        pp.card["params"] == 10_561 and pp.card["training"]["loss_weights"]["illumination_smoothness"] == 1600
-    )
+    assert pp.card["params"] == 10_561 and pp.card["training"]["loss_weights"]["illumination_smoothness"] == 1600
     ZeroDcePlusPlusMethod(weights=tmp_path / "pp.safetensors")
 
 

@@ -75,8 +75,7 @@ def classify(
     scores = {
         "gain jump": _log_ratio(light_j.get("gain", 1.0), light_k.get("gain", 1.0)) / GAIN_CHANGE,
         "exposure lag": _log_ratio(exp_j, exp_k) / EXPOSURE_CHANGE,
-        "tone-curve change": _log_ratio(light_j.get("contrast", 1.0), light_k.get("contrast", 1.0))
-        / CONTRAST_CHANGE,
+        "tone-curve change": _log_ratio(light_j.get("contrast", 1.0), light_k.get("contrast", 1.0)) / CONTRAST_CHANGE,
     }
     causes = []
     if light_k.get("close_occluder") or light_j.get("close_occluder"):
@@ -147,9 +146,7 @@ def summarize_failures(
         rescue: dict[str, Any] = {}
         for label in labels:
             hit = [f for f in items if label in f["rescued_by"]]
-            by_cause = {
-                c: (sum(1 for f in hit if f["cause"] == c) / causes[c]) if causes[c] else None for c in CAUSES
-            }
+            by_cause = {c: (sum(1 for f in hit if f["cause"] == c) / causes[c]) if causes[c] else None for c in CAUSES}
             rescue[label] = {
                 "rescued": len(hit),
                 "rate": len(hit) / len(items) if items else None,

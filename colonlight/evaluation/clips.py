@@ -193,9 +193,7 @@ def load_synthetic_clip(
     frames = [resize_frame(f, size) for f in images]
     if any(f.shape[1::-1] != size for f in frames):
         raise InputError(f"{folder}: frame size differs from intrinsics.json ({w0}x{h0})")
-    clean = (
-        [resize_frame(read_image(p), size) for p in clean_paths] if len(clean_paths) == len(frames) else None
-    )
+    clean = [resize_frame(read_image(p), size) for p in clean_paths] if len(clean_paths) == len(frames) else None
     occluder = None
     per_frame: list[dict[str, Any]] | None = None
     camera_gamma = None

@@ -194,9 +194,7 @@ def ate_statistics(
     if len(index) < MIN_ATE_POSES:
         raise ValueError(f"ATE needs at least {MIN_ATE_POSES} poses, got {len(index)}")
     stamps = np.array(index, dtype=np.float64) / fps
-    ref = PoseTrajectory3D(
-        poses_se3=[np.asarray(ground_truth[i], np.float64) for i in index], timestamps=stamps
-    )
+    ref = PoseTrajectory3D(poses_se3=[np.asarray(ground_truth[i], np.float64) for i in index], timestamps=stamps)
     est = PoseTrajectory3D(poses_se3=[np.asarray(estimated[i], np.float64) for i in index], timestamps=stamps)
     ref, est = sync.associate_trajectories(ref, est, max_diff=0.25 / fps)
     try:

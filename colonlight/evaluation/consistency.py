@@ -118,9 +118,7 @@ def warp(frame: np.ndarray, corr: Correspondence) -> np.ndarray:
 
 def warp_mask(mask: np.ndarray, corr: Correspondence) -> np.ndarray:
     """A boolean mask of frame ``t`` carried into frame ``t-1``'s view (nearest neighbour)."""
-    m = cv2.remap(
-        mask.astype(np.uint8), corr.map_x, corr.map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT
-    )
+    m = cv2.remap(mask.astype(np.uint8), corr.map_x, corr.map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
     return m.astype(bool)
 
 

@@ -222,9 +222,7 @@ def table_rows(rows: Sequence[dict[str, Any]]) -> tuple[list[str], list[list[str
     ]  # fmt: skip
     cells = []
     for r in rows:
-        ate = " / ".join(
-            fmt(r[f"ate_{k}_m"], ".2f", 1000) for k in ("rmse", "mean", "std", "min", "median", "max")
-        )
+        ate = " / ".join(fmt(r[f"ate_{k}_m"], ".2f", 1000) for k in ("rmse", "mean", "std", "min", "median", "max"))
         cells.append(
             [
                 r["method"],
@@ -382,9 +380,7 @@ def markdown_report(result: EvaluationResult, rows: Sequence[dict[str, Any]]) ->
     if result.skipped_methods:
         lines += ["Skipped methods:", ""] + [f"- {k}: {v}" for k, v in result.skipped_methods.items()] + [""]
     if result.failures:
-        lines += ["Clips that could not be read:", ""] + [
-            f"- {f['clip']}: {f['error']}" for f in result.failures
-        ]
+        lines += ["Clips that could not be read:", ""] + [f"- {f['clip']}: {f['error']}" for f in result.failures]
         lines += [""]
     lines += ["Definitions:", ""] + [f"- **{k}**: {v}" for k, v in DEFINITIONS]
     return "\n".join(lines) + "\n"
@@ -466,12 +462,8 @@ def bars_plot(result: EvaluationResult, rows: Sequence[dict[str, Any]]) -> str |
     panels: list[tuple[str, list[float], float | None]] = []
     if any(r["tracked"] for r in rows):
         for m in run_modes(result):
-            panels.append(
-                (f"tracker success rate ({m})", [r[f"track_success_rate_{m}"] or 0.0 for r in rows], None)
-            )
-            panels.append(
-                (f"tracked fraction ({m})", [r[f"tracked_fraction_{m}"] or 0.0 for r in rows], None)
-            )
+            panels.append((f"tracker success rate ({m})", [r[f"track_success_rate_{m}"] or 0.0 for r in rows], None))
+            panels.append((f"tracked fraction ({m})", [r[f"tracked_fraction_{m}"] or 0.0 for r in rows], None))
     if any(r["colmap_clips"] for r in rows):
         panels.append(("COLMAP frames registered", [r["registered"] or 0.0 for r in rows], None))
     flick = [r["flicker_out"] if math.isfinite(r["flicker_out"]) else 0.0 for r in rows]

@@ -274,9 +274,7 @@ def _track(clip: EvalClip, frames: list[np.ndarray], settings: TrackerSettings) 
     te, re = res.translation_error_m, res.rotation_error_deg
     if te is not None and re is not None and len(te) > 1:
         te1, re1 = (np.nan_to_num(np.asarray(x[1:], np.float64), nan=np.inf) for x in (te, re))
-        held = slice(
-            0, (res.failed_at - 1) if res.failed_at is not None else len(te1)
-        )  # frames before failure
+        held = slice(0, (res.failed_at - 1) if res.failed_at is not None else len(te1))  # frames before failure
         out.update(
             translation_error_m_mean_tracked=float(te1[held].mean()) if te1[held].size else None,
             rotation_error_deg_mean_tracked=float(re1[held].mean()) if re1[held].size else None,
@@ -304,9 +302,7 @@ def _thumb(frame: np.ndarray) -> np.ndarray:
     h, w = frame.shape[:2]
     if h <= STRIP_HEIGHT:
         return frame
-    return cv2.resize(
-        frame, (max(1, round(w * STRIP_HEIGHT / h)), STRIP_HEIGHT), interpolation=cv2.INTER_AREA
-    )
+    return cv2.resize(frame, (max(1, round(w * STRIP_HEIGHT / h)), STRIP_HEIGHT), interpolation=cv2.INTER_AREA)
 
 
 def _warm_up(method: Method, frames: Sequence[np.ndarray]) -> None:
@@ -318,9 +314,7 @@ def _warm_up(method: Method, frames: Sequence[np.ndarray]) -> None:
     stream.flush()
 
 
-def _run_method(
-    method: Method, frames: list[np.ndarray]
-) -> tuple[list[np.ndarray], list[float | None], float, float]:
+def _run_method(method: Method, frames: list[np.ndarray]) -> tuple[list[np.ndarray], list[float | None], float, float]:
     """Enhanced frames, per-frame gammas, and wall and CPU milliseconds per frame (the method alone, no I/O).
 
     CPU time (this process, all its threads) is kept beside wall time because on a shared machine wall time
@@ -399,9 +393,7 @@ def _score(
     return r
 
 
-def _reference_frames(
-    clip: EvalClip, label: str
-) -> tuple[list[np.ndarray], list[float | None], float, float]:
+def _reference_frames(clip: EvalClip, label: str) -> tuple[list[np.ndarray], list[float | None], float, float]:
     """The clean frames, or an oracle's corrected frames, with their gammas and cost (ms/frame wall, CPU)."""
     assert clip.clean is not None
     c0, t0 = time.process_time(), time.perf_counter()
@@ -462,9 +454,7 @@ def evaluate_clip(
         ssim_in_series=[float(x) for x in ssim_in],
     )
     idx = _strip_indices(len(clip.frames))
-    strips: dict[str, list[np.ndarray]] = (
-        {"input": [_thumb(clip.frames[i]) for i in idx]} if keep_strip else {}
-    )
+    strips: dict[str, list[np.ndarray]] = {"input": [_thumb(clip.frames[i]) for i in idx]} if keep_strip else {}
     references = REFERENCE_LABELS if oracles and clip.clean is not None else ()
     for label in references:
         try:
@@ -485,9 +475,7 @@ def evaluate_clip(
         except Exception as exc:  # noqa: BLE001 - one method's bug must not lose the other results
             record.results[spec.label] = _errored(clip, spec.label, exc)
         if progress:
-            progress(
-                "method", {"clip": clip.name, "method": spec.label, "error": record.results[spec.label].error}
-            )
+            progress("method", {"clip": clip.name, "method": spec.label, "error": record.results[spec.label].error})
     input_label = next((spec.label for spec, _ in methods if spec.name == INPUT_NAME), None)
     if references and tracker and input_label is not None and clip.synthetic:
         assert clip.clean is not None
@@ -513,9 +501,7 @@ def _modes(brightness: Sequence[str] | str) -> tuple[str, ...]:
     )
     bad = [m for m in wanted if m not in BRIGHTNESS_MODES]
     if bad or not wanted:
-        raise ValueError(
-            f"unknown brightness setting {', '.join(bad) or '(none)'}; choose fixed, affine or both"
-        )
+        raise ValueError(f"unknown brightness setting {', '.join(bad) or '(none)'}; choose fixed, affine or both")
     return tuple(m for m in BRIGHTNESS_MODES if m in wanted)
 
 
@@ -662,9 +648,7 @@ def _evaluate_clips(
         "threads": threads,
         "colmap": asdict(colmap_settings) if colmap else None,
         # the brightness setting is replaced by each of "brightness" below
-        "tracker": {k: v for k, v in asdict(tracker_settings).items() if k != "brightness"}
-        if tracker
-        else None,
+        "tracker": {k: v for k, v in asdict(tracker_settings).items() if k != "brightness"} if tracker else None,
         "brightness": list(brightness) if tracker else [],
         "oracles": oracles,
         "dark_threshold": 0.1,
@@ -759,9 +743,7 @@ def summarize(result: EvaluationResult) -> list[dict[str, Any]]:
             "clips": len(rs),
             "frames": frames,
             "ms_per_frame": sum(r.ms_per_frame * r.frames for r in rs) / frames if frames else float("nan"),
-            "cpu_ms_per_frame": sum(r.cpu_ms_per_frame * r.frames for r in rs) / frames
-            if frames
-            else float("nan"),
+            "cpu_ms_per_frame": sum(r.cpu_ms_per_frame * r.frames for r in rs) / frames if frames else float("nan"),
             "flicker_in": _nanmean(r.flicker_in for r in rs),
             "flicker_out": _nanmean(r.flicker_out for r in rs),
             "flicker_reduction": _nanmean(r.flicker_reduction for r in rs),
@@ -776,9 +758,7 @@ def summarize(result: EvaluationResult) -> list[dict[str, Any]]:
             "tracked": max((len(_tracks(rs, m)) for m in modes), default=0),
         }
         for m in BRIGHTNESS_MODES:
-            row.update(
-                _tracking_fields(result, label, rs, m, breakdown.get(m) if m in modes else None, m in modes)
-            )
+            row.update(_tracking_fields(result, label, rs, m, breakdown.get(m) if m in modes else None, m in modes))
         row.update(
             colmap_clips=len(cms),
             registered=_nanmean(c["fraction"] for c in cms) if cms else None,
@@ -816,14 +796,10 @@ def _tracking_fields(
         f"rescue_rate_{mode}": rescue.get("rate"),
         f"track_te_{mode}_m": _nanmedian(t.get("translation_error_m_median") for t in tracked),
         f"track_re_{mode}_deg": _nanmedian(t.get("rotation_error_deg_median") for t in tracked),
-        f"track_te_mean_tracked_{mode}_m": _nanmean(
-            t.get("translation_error_m_mean_tracked") for t in tracked
-        )
+        f"track_te_mean_tracked_{mode}_m": _nanmean(t.get("translation_error_m_mean_tracked") for t in tracked)
         if tracked
         else None,
-        f"track_re_mean_tracked_{mode}_deg": _nanmean(
-            t.get("rotation_error_deg_mean_tracked") for t in tracked
-        )
+        f"track_re_mean_tracked_{mode}_deg": _nanmean(t.get("rotation_error_deg_mean_tracked") for t in tracked)
         if tracked
         else None,
     }
@@ -862,9 +838,7 @@ def failure_breakdown(result: EvaluationResult) -> dict[str, Any]:
     """Per brightness setting, the frames the input fails and the clean frames pass: counts per cause and each
     method's rescues (see :mod:`.breakdown`); empty without clips that have clean frames and an input row."""
     per_clip = [c.input_failures for c in result.clips]
-    if not any(c.input_failures for c in result.clips) and not any(
-        CLEAN_LABEL in c.results for c in result.clips
-    ):
+    if not any(c.input_failures for c in result.clips) and not any(CLEAN_LABEL in c.results for c in result.clips):
         return {}
     base = input_label(result)
     labels = [lab for lab in result.labels if lab not in (base, CLEAN_LABEL)]

@@ -406,9 +406,7 @@ def _update(est: _Estimate, delta: np.ndarray) -> _Estimate:
     return _Estimate(T, est.a + float(delta[6]), est.b + float(delta[7]))
 
 
-def _optimise(
-    pts: _Points, level: _Level, est: _Estimate, s: TrackerSettings
-) -> tuple[_Estimate, _Eval, bool]:
+def _optimise(pts: _Points, level: _Level, est: _Estimate, s: TrackerSettings) -> tuple[_Estimate, _Eval, bool]:
     """Levenberg-Marquardt on one level; returns the estimate, its evaluation and whether it converged.
 
     As in DSO, the outlier cutoff is doubled (up to 3 times) while fewer than half the points are inliers,
@@ -513,15 +511,11 @@ def _validate(
     for i, (f, d) in enumerate(zip(frames, depths, strict=True)):
         f, d = np.asarray(f), np.asarray(d)
         if f.dtype != np.uint8 or not (f.ndim == 2 or (f.ndim == 3 and f.shape[2] == 3)):
-            raise ValueError(
-                f"frame {i}: expected uint8 (H, W, 3) RGB or (H, W) grey, got {f.dtype} {f.shape}"
-            )
+            raise ValueError(f"frame {i}: expected uint8 (H, W, 3) RGB or (H, W) grey, got {f.dtype} {f.shape}")
         if f.shape[:2] != shape:
             raise ValueError(f"frame {i} is {f.shape[:2]}, frame 0 is {shape}: all frames must match")
         if d.shape != shape or not np.issubdtype(d.dtype, np.number):
-            raise ValueError(
-                f"depth {i} is {d.dtype} {d.shape}, expected numbers of shape {shape} (the frame's)"
-            )
+            raise ValueError(f"depth {i} is {d.dtype} {d.shape}, expected numbers of shape {shape} (the frame's)")
         if gt_poses is not None:
             p = np.asarray(gt_poses[i], dtype=np.float64)
             if p.shape != (4, 4) or not np.all(np.isfinite(p)):
@@ -597,9 +591,7 @@ def track_clip(
         residual[j], valid[j], converged[j] = ev.mean_abs, frac, conv and why is None
         keyframe_of[j] = kf.index
         if why is not None or _needs_keyframe(j, kf, est, frac, s):
-            kf = _make_keyframe(
-                j, pose, (float(affine[j, 0]), float(affine[j, 1])), pyr, np.asarray(depths[j]), s
-            )
+            kf = _make_keyframe(j, pose, (float(affine[j, 0]), float(affine[j, 1])), pyr, np.asarray(depths[j]), s)
             keyframes.append(j)
             rel_affine = (0.0, 0.0)
     return _result(poses, affine, residual, converged, valid, keyframe_of, keyframes, lost, gt, s)
@@ -649,9 +641,7 @@ def _result(
         t_rel, r_rel, _, _, step = errs
         t_lim = np.maximum(s.max_translation_error_m, s.relative_translation_error * step)
         for j in np.flatnonzero((t_rel > t_lim) | (r_rel > s.max_rotation_error_deg)):
-            failures.setdefault(
-                int(j), f"pose error {t_rel[j] * 1000:.2f} mm / {r_rel[j]:.2f} deg over the threshold"
-            )
+            failures.setdefault(int(j), f"pose error {t_rel[j] * 1000:.2f} mm / {r_rel[j]:.2f} deg over the threshold")
     failed_at = min(failures) if failures else None
     frame_ok = np.ones(len(poses), dtype=bool)
     frame_ok[list(failures)] = False

@@ -120,7 +120,9 @@ class MpegTsPipe:
         if self._container is None:
             self._open(w, h)
         elif self.size != (w, h):
-            raise InputError(f"frame {index} is {w}x{h} but the MPEG-TS stream started at {self.size[0]}x{self.size[1]}")
+            raise InputError(
+                f"frame {index} is {w}x{h} but the MPEG-TS stream started at {self.size[0]}x{self.size[1]}"
+            )
         vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")
         vf.pts = index
         vf.time_base = 1 / self.fps

@@ -166,7 +166,9 @@ class StreamReader:
                 else:  # the same source frame again (a slower source): its own buffer
                     image = h.rgb.copy()
                 self.summary.frames_in += 1
-                self.handoff.put(LiveFrame(image, c.index, h.time_s, h.arrival_wall, h.arrival, self.summary.connections))
+                self.handoff.put(
+                    LiveFrame(image, c.index, h.time_s, h.arrival_wall, h.arrival, self.summary.connections)
+                )
 
         def release() -> None:
             keep = set(self.choice.pending)

@@ -21,9 +21,9 @@ from typing import Any, BinaryIO
 from .. import __version__
 from ..atomic import write_json_atomic
 from ..errors import ColonlightError, InputError, OptionError
+from ..limits import DEFAULT_FPS
 from ..methods.base import FrameResult, Method
 from ..provenance import library_versions
-from ..limits import DEFAULT_FPS
 from .handoff import DROP_POLICIES, FrameHandoff, HandoffClosed
 from .outputs import FRAMES_DIR, LOG_FILE, SUMMARY_FILE, FrameFolder, FrameOutput, GammaLog, PipeClosed, open_pipe
 from .reader import LiveFrame, StreamReader
@@ -116,8 +116,15 @@ class LiveStream:
         self._stop_reason = "stopped"
         self.handoff: FrameHandoff[LiveFrame] = FrameHandoff(opts.buffer, opts.drop_policy(spec))
         self.reader = StreamReader(
-            spec, self.handoff, self.summary, self._stop, fps=opts.fps or None, realtime=opts.realtime,
-            reconnect=opts.reconnect, timeout_s=opts.timeout_s, notify=notify,
+            spec,
+            self.handoff,
+            self.summary,
+            self._stop,
+            fps=opts.fps or None,
+            realtime=opts.realtime,
+            reconnect=opts.reconnect,
+            timeout_s=opts.timeout_s,
+            notify=notify,
         )
         self.on_frame = on_frame
         self._outputs: list[FrameOutput] = []

@@ -66,7 +66,9 @@ def parse_source(text: str, input_format: str | None = None, options: Mapping[st
     scheme = _scheme(text)
     if scheme is not None:
         if scheme not in NETWORK_SCHEMES:
-            raise InputError(f"{text}: unknown stream scheme {scheme!r} (use one of {', '.join(sorted(NETWORK_SCHEMES))})")
+            raise InputError(
+                f"{text}: unknown stream scheme {scheme!r} (use one of {', '.join(sorted(NETWORK_SCHEMES))})"
+            )
         return SourceSpec(text, "network", text, input_format, {**_NETWORK_DEFAULTS.get(scheme, {}), **opts})
     if text.startswith("/dev/video") or input_format in ("v4l2", "video4linux2"):
         probe_device(Path(text))

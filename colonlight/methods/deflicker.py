@@ -171,8 +171,7 @@ def _glibc_cbrtf(x: np.float32) -> np.float32:
     xm, xe = np.float32(xm), int(xe)
     ld = np.longdouble
     u = np.float32(
-        ld("0.492659620528969547")
-        + (ld("0.697570460207922770") - ld("0.191502161678719066") * ld(xm)) * ld(xm)
+        ld("0.492659620528969547") + (ld("0.697570460207922770") - ld("0.191502161678719066") * ld(xm)) * ld(xm)
     )
     t2 = np.float32(np.float32(u * u) * u)
     ym = np.float32(

@@ -115,9 +115,7 @@ class ClaheMethod(Method):
 
     name = "clahe"
 
-    def __init__(
-        self, clip_limit: float = 2.0, tile_grid: tuple[int, int] = (8, 8), space: str = "lab"
-    ) -> None:
+    def __init__(self, clip_limit: float = 2.0, tile_grid: tuple[int, int] = (8, 8), space: str = "lab") -> None:
         clip_limit = float(clip_limit)
         if not math.isfinite(clip_limit) or clip_limit < 0:
             raise OptionError(f"clip_limit must be finite and >= 0, got {clip_limit!r}")

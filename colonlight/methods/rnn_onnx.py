@@ -33,7 +33,10 @@ StepFn = Callable[[torch.Tensor, Any], tuple[Any, Any]]
 
 def cache_dir() -> Path:
     """``$COLONLIGHT_CACHE_DIR``, else ``$XDG_CACHE_HOME/colonlight``, else ``~/.cache/colonlight``; plus ``onnx``."""
-    root = os.environ.get("COLONLIGHT_CACHE_DIR") or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "colonlight"
+    root = (
+        os.environ.get("COLONLIGHT_CACHE_DIR")
+        or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "colonlight"
+    )
     return Path(root) / "onnx"
 
 
@@ -75,8 +78,10 @@ class OnnxStep:
     def __init__(self, weights: LoadedWeights, size: int) -> None:
         self.signature: StepSignature = step_signature(weights, size)[0]
         if len(self.signature.head_names) != 1:
-            raise OptionError(f"--runtime onnxruntime runs networks with one output tensor; these weights have "
-                             f"{', '.join(self.signature.head_names)}")
+            raise OptionError(
+                f"--runtime onnxruntime runs networks with one output tensor; these weights have "
+                f"{', '.join(self.signature.head_names)}"
+            )
         self.session = _session(weights, size)
 
     def __call__(self, frame: torch.Tensor, state: Any) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:

@@ -63,9 +63,7 @@ def _to_tensor(frame: np.ndarray, device: torch.device) -> torch.Tensor:
 
 def _to_frame(x: torch.Tensor) -> np.ndarray:
     """``(1, 3, H, W)`` in [0, 1] -> ``(H, W, 3)`` uint8 (rounded)."""
-    return (
-        x[0].clamp_(0.0, 1.0).mul_(255.0).round_().to(torch.uint8).permute(1, 2, 0).contiguous().cpu().numpy()
-    )
+    return x[0].clamp_(0.0, 1.0).mul_(255.0).round_().to(torch.uint8).permute(1, 2, 0).contiguous().cpu().numpy()
 
 
 class _ZeroDceBase(Method):

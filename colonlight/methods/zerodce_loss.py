@@ -45,9 +45,7 @@ def _neighbour_differences(y: torch.Tensor) -> torch.Tensor:
     """Signed differences cell - neighbour (left, right, up, down) with zeros outside: ``(B, 4, h, w)``."""
     p = F.pad(y, (1, 1, 1, 1))
     c = p[..., 1:-1, 1:-1]
-    return torch.cat(
-        [c - p[..., 1:-1, :-2], c - p[..., 1:-1, 2:], c - p[..., :-2, 1:-1], c - p[..., 2:, 1:-1]], 1
-    )
+    return torch.cat([c - p[..., 1:-1, :-2], c - p[..., 1:-1, 2:], c - p[..., :-2, 1:-1], c - p[..., 2:, 1:-1]], 1)
 
 
 def spatial_consistency_loss(enhanced: torch.Tensor, original: torch.Tensor) -> torch.Tensor:
@@ -61,9 +59,7 @@ def spatial_consistency_loss(enhanced: torch.Tensor, original: torch.Tensor) -> 
     return (d * d).sum(1).mean()
 
 
-def exposure_loss(
-    enhanced: torch.Tensor, level: float = EXPOSURE_LEVEL, patch: int = EXPOSURE_PATCH
-) -> torch.Tensor:
+def exposure_loss(enhanced: torch.Tensor, level: float = EXPOSURE_LEVEL, patch: int = EXPOSURE_PATCH) -> torch.Tensor:
     """L_exp: mean over 16x16 patches of the channel mean of ``(Y_k - E)^2``, E = 0.6."""
     y = F.avg_pool2d(enhanced.mean(1, keepdim=True), patch)
     return ((y - level) ** 2).mean()

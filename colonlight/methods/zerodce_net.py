@@ -225,9 +225,7 @@ def load_zerodce_weights(path: Path | str, variant: str) -> tuple[nn.Module, str
     missing = sorted(set(expected) - set(state))
     unexpected = sorted(set(state) - set(expected))
     if missing or unexpected:
-        raise CheckpointError(
-            f"{path}: not {variant} weights (missing {missing[:3]}, unexpected {unexpected[:3]})"
-        )
+        raise CheckpointError(f"{path}: not {variant} weights (missing {missing[:3]}, unexpected {unexpected[:3]})")
     for key, tensor in state.items():
         if tensor.shape != expected[key].shape:
             raise CheckpointError(

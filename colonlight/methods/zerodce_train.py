@@ -155,9 +155,7 @@ def train_zerodce(
             enhanced, alphas = _forward(net, x, iterations)
             loss, terms = zerodce_loss(x, enhanced, alphas, weights)
             if not math.isfinite(loss.item()):
-                raise FloatingPointError(
-                    f"Zero-DCE training diverged at epoch {epoch + 1} (loss {loss.item()})"
-                )
+                raise FloatingPointError(f"Zero-DCE training diverged at epoch {epoch + 1} (loss {loss.item()})")
             opt.zero_grad(set_to_none=True)
             loss.backward()
             nn.utils.clip_grad_norm_(net.parameters(), grad_clip)
@@ -176,9 +174,7 @@ def train_zerodce(
     out_path = Path(out_path)
     card = {
         "name": name or out_path.stem,
-        "architecture": "DCE-Net (Guo et al. 2020)"
-        if variant == "zerodce"
-        else "Zero-DCE++ (Li et al. 2021)",
+        "architecture": "DCE-Net (Guo et al. 2020)" if variant == "zerodce" else "Zero-DCE++ (Li et al. 2021)",
         "params": count_parameters(net),
         "iterations": iterations,
         "training": {

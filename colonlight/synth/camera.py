@@ -45,9 +45,7 @@ class Intrinsics:
     def rays(self) -> np.ndarray:
         """Unit ray directions (H*W, 3) in camera coordinates, row-major."""
         u, v = np.meshgrid(np.arange(self.width, dtype=np.float64), np.arange(self.height, dtype=np.float64))
-        d = np.stack([(u - self.cx) / self.fx, (v - self.cy) / self.fy, np.ones_like(u)], axis=-1).reshape(
-            -1, 3
-        )
+        d = np.stack([(u - self.cx) / self.fx, (v - self.cy) / self.fy, np.ones_like(u)], axis=-1).reshape(-1, 3)
         return d / np.linalg.norm(d, axis=1, keepdims=True)
 
     def to_dict(self) -> dict[str, float | int | str]:
@@ -139,16 +137,10 @@ def plan_trajectory(
     lat = cfg.lateral * np.stack([smooth_series(rng, n, corr), smooth_series(rng, n, corr)], axis=1)
     mag = np.linalg.norm(lat, axis=1, keepdims=True)
     lat *= np.minimum(1.0, 0.55 / np.maximum(mag, 1e-9))
-    yaw = np.deg2rad(
-        cfg.look_var_deg * smooth_series(rng, n, corr) + cfg.jitter_deg * smooth_series(rng, n, 0.8)
-    )
-    pitch = np.deg2rad(
-        cfg.look_var_deg * smooth_series(rng, n, corr) + cfg.jitter_deg * smooth_series(rng, n, 0.8)
-    )
+    yaw = np.deg2rad(cfg.look_var_deg * smooth_series(rng, n, corr) + cfg.jitter_deg * smooth_series(rng, n, 0.8))
+    pitch = np.deg2rad(cfg.look_var_deg * smooth_series(rng, n, corr) + cfg.jitter_deg * smooth_series(rng, n, 0.8))
     t = np.arange(n) / cfg.fps
-    roll = np.deg2rad(
-        rng.uniform(0, 360) + cfg.roll_rate_deg_s * t + cfg.roll_var_deg * smooth_series(rng, n, corr)
-    )
+    roll = np.deg2rad(rng.uniform(0, 360) + cfg.roll_rate_deg_s * t + cfg.roll_var_deg * smooth_series(rng, n, corr))
     lookahead = rng.uniform(25, 70)
     occ = _plan_occluders(cfg, rng, half_fov)
     env = occ.env
@@ -178,7 +170,7 @@ def plan_trajectory(
         pos = centre.copy()
         pos[:, :2] += off * (scale * rfree)[:, None]
         (F,) = tube.evaluate(pos.astype(np.float32))
-        bad = F < margin
+        bad = margin > F
         if not bad.any():
             break
         scale[bad] *= 0.85

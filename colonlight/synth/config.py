@@ -222,9 +222,7 @@ class SynthConfig:
         if isinstance(self.close_occluder, bool):  # convenience: True -> force, False -> forbid
             self.close_occluder = "force" if self.close_occluder else "forbid"
         if self.close_occluder not in ("random", "force", "forbid"):
-            raise ValueError(
-                f"close_occluder must be 'random', 'force' or 'forbid', got {self.close_occluder!r}"
-            )
+            raise ValueError(f"close_occluder must be 'random', 'force' or 'forbid', got {self.close_occluder!r}")
         if self.width < 16 or self.height < 16:
             raise ValueError(f"frame size must be at least 16x16, got {self.width}x{self.height}")
         if self.n_frames < 1:

@@ -133,9 +133,7 @@ def plan_lighting(
     return LightingSchedule(cfg.camera_gamma, clean_exposure, gain, contrast, exposure, events)
 
 
-def _flicker(
-    cfg: SynthConfig, rng: np.random.Generator, n: int, first: int
-) -> tuple[np.ndarray, np.ndarray]:
+def _flicker(cfg: SynthConfig, rng: np.random.Generator, n: int, first: int) -> tuple[np.ndarray, np.ndarray]:
     """Per-frame log gain and log contrast noise: stationary AR(1), zero on the undisturbed seed frames."""
     white = rng.standard_normal((2, n))
     rho = float(np.clip(cfg.flicker_corr, 0.0, 0.95))
@@ -171,9 +169,7 @@ def _auto_exposure(cfg: SynthConfig, mean_lum: np.ndarray, first: int) -> np.nda
     return out
 
 
-def _hold_profile(
-    n: int, start: int, onset: int, hold: int, recover_rate: float | None, ramp_out: int
-) -> np.ndarray:
+def _hold_profile(n: int, start: int, onset: int, hold: int, recover_rate: float | None, ramp_out: int) -> np.ndarray:
     """A 0..1 profile: ramp up over ``onset`` frames, hold, then decay exponentially or ramp down."""
     prof = np.zeros(n)
     t = np.arange(n) - start
@@ -228,9 +224,7 @@ def _contrast_events(
     for _ in range(k):
         start = int(rng.integers(first, max(first + 1, n)))
         up = rng.random() < 0.5
-        lo, hi = (
-            (np.log(1.12), np.log(CONTRAST_RANGE[1])) if up else (np.log(1.12), -np.log(CONTRAST_RANGE[0]))
-        )
+        lo, hi = (np.log(1.12), np.log(CONTRAST_RANGE[1])) if up else (np.log(1.12), -np.log(CONTRAST_RANGE[0]))
         expo = float(np.exp(rng.uniform(lo, hi) * (1 if up else -1)))
         onset = int(rng.integers(0, 5))
         hold = max(1, int(round(cfg.contrast_hold_s * cfg.fps * rng.uniform(0.5, 1.5))))

@@ -130,11 +130,7 @@ class Tube:
             owner[closer] = k
         # never let folds (with their lopsidedness) close the lumen: soft-limit the summed depth
         d_cap = (
-            0.7
-            * R0
-            * (1 - cfg.triangularity - cfg.ellipticity)
-            * np.exp(-2.5 * cfg.radius_var)
-            / (1 + cfg.fold_asym)
+            0.7 * R0 * (1 - cfg.triangularity - cfg.ellipticity) * np.exp(-2.5 * cfg.radius_var) / (1 + cfg.fold_asym)
         )
         th = np.tanh(D / d_cap)
         dD = dD * (1 - th**2)
@@ -176,14 +172,10 @@ class Tube:
         rho = DR * np.arange(nr)
         safe = np.zeros((nz, nr), np.float32)
         for h in _LEVELS:
-            n_w = int(
-                np.ceil((h + DZ) / DZ)
-            )  # half-window in samples, + one sample for nearest-index lookups
+            n_w = int(np.ceil((h + DZ) / DZ))  # half-window in samples, + one sample for nearest-index lookups
             lo = _window_min(rmin, n_w)
             # centre-line excursion within the window (a neighbouring slice's wall is measured from its own c)
-            ex = np.hypot(
-                _window_max(cx, n_w) - _window_min(cx, n_w), _window_max(cy, n_w) - _window_min(cy, n_w)
-            )
+            ex = np.hypot(_window_max(cx, n_w) - _window_min(cx, n_w), _window_max(cy, n_w) - _window_min(cy, n_w))
             r_lo = lo - ex
             lvl = np.minimum(h, r_lo[:, None] - rho[None, :])
             np.maximum(safe, lvl.astype(np.float32), out=safe)
@@ -286,9 +278,7 @@ class Tube:
         self._rtab = tab
         self._line = np.ascontiguousarray(self.rows[None, :, [_CX, _CY, _DCX, _DCY]], dtype=np.float32)
 
-    def evaluate_fast(
-        self, p: np.ndarray, d: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def evaluate_fast(self, p: np.ndarray, d: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """F, |grad F| and (with ray directions ``d``) dF/dt = grad F . d at points ``p``, from bilinear
         tables (for marching; ~3x cheaper than :meth:`evaluate`, within ~0.05 mm of it)."""
         z = p[:, 2]
@@ -367,9 +357,7 @@ def _remap_points(table: np.ndarray, mx: np.ndarray, my: np.ndarray) -> np.ndarr
     mx = mx.astype(np.float32, copy=False)
     my = my.astype(np.float32, copy=False)
     if n < 32767:
-        out = cv2.remap(
-            table, mx.reshape(1, n), my.reshape(1, n), cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP
-        )
+        out = cv2.remap(table, mx.reshape(1, n), my.reshape(1, n), cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
         return out.reshape(n, -1)
     w = 4096
     m = -(-n // w)
@@ -404,9 +392,7 @@ def _window_min(a: np.ndarray, half: int) -> np.ndarray:
         return a.copy()
     k = 2 * half + 1
     src = np.pad(a.astype(np.float32), (half, half), mode="edge")[None, :]
-    return cv2.erode(src, np.ones((1, k), np.uint8), borderType=cv2.BORDER_REPLICATE)[0, half:-half].astype(
-        np.float64
-    )
+    return cv2.erode(src, np.ones((1, k), np.uint8), borderType=cv2.BORDER_REPLICATE)[0, half:-half].astype(np.float64)
 
 
 def _window_max(a: np.ndarray, half: int) -> np.ndarray:

@@ -22,7 +22,10 @@ BORDER_LEVEL = 0
 TEXT_COLOUR = (235, 235, 235)
 #: The on-screen text: patient fields at the top left, time at the top right, scope settings at the bottom.
 TEXT_LINES = (
-    ("ID 0042-17", "top-left"), ("F 63y", "top-left-2"), ("10:24:37", "top-right"), ("Ex A2 E3", "bottom"),
+    ("ID 0042-17", "top-left"),
+    ("F 63y", "top-left-2"),
+    ("10:24:37", "top-right"),
+    ("Ex A2 E3", "bottom"),
 )
 
 
@@ -84,8 +87,16 @@ def fov_mask(height: int, width: int, border: str, fov: float = 0.96) -> np.ndar
     else:
         hw, hh = fov * width / 2, fov * height / 2
         cut = 0.3 * min(hw, hh)  # corner cut: a regular-looking octagon on a 4:3 frame
-        pts = [(-hw + cut, -hh), (hw - cut, -hh), (hw, -hh + cut), (hw, hh - cut),
-               (hw - cut, hh), (-hw + cut, hh), (-hw, hh - cut), (-hw, -hh + cut)]
+        pts = [
+            (-hw + cut, -hh),
+            (hw - cut, -hh),
+            (hw, -hh + cut),
+            (hw, hh - cut),
+            (hw - cut, hh),
+            (-hw + cut, hh),
+            (-hw, hh - cut),
+            (-hw, -hh + cut),
+        ]
         poly = np.array([[round((cx + x) * 16), round((cy + y) * 16)] for x, y in pts], np.int32)
         cv2.fillConvexPoly(canvas, poly, 1, shift=4)
     return canvas.astype(bool)

@@ -89,9 +89,7 @@ def march(
             hit = (f_new < np.maximum(np.float32(0.01), pix * at)) & (f_new >= 0)  # nan -> False
             neg = f_new < 0
             if neg.any():
-                brackets.append(
-                    (act[neg], dx[neg], dy[neg], dz[neg], a_tin[neg], a_fin[neg], at[neg], f_new[neg])
-                )
+                brackets.append((act[neg], dx[neg], dy[neg], dz[neg], a_tin[neg], a_fin[neg], at[neg], f_new[neg]))
             if hit.any():
                 t_hit[act[hit]] = at[hit]
             fin |= hit | neg

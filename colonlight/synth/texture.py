@@ -69,9 +69,7 @@ class WallTexture:
         alb *= np.clip(1 - v[..., None] * vessel_tint, 0.05, 1)
 
         # wetness: patchy, so glints gather in some places instead of sprinkling evenly
-        wet = 0.6 * periodic_noise(rng, (nv, nu), 10 * per_mm) + 0.4 * periodic_noise(
-            rng, (nv, nu), 3 * per_mm
-        )
+        wet = 0.6 * periodic_noise(rng, (nv, nu), 10 * per_mm) + 0.4 * periodic_noise(rng, (nv, nu), 3 * per_mm)
         spec = np.exp(0.9 * wet - 0.4).astype(np.float32)
 
         # debris: yellow-brown blobs, less glossy
@@ -83,9 +81,7 @@ class WallTexture:
                 ax = (max(1, int(rng.uniform(0.5, 4) * per_mm)), max(1, int(rng.uniform(0.5, 4) * per_mm)))
                 cv2.ellipse(mask, c, ax, float(rng.uniform(0, 180)), 0, 360, float(rng.uniform(0.5, 1)), -1)
             mask = cv2.GaussianBlur(mask, (0, 0), 1.5)
-            col = np.array(
-                colorsys.hsv_to_rgb(rng.uniform(0.06, 0.11), rng.uniform(0.45, 0.8), rng.uniform(0.45, 0.8))
-            )
+            col = np.array(colorsys.hsv_to_rgb(rng.uniform(0.06, 0.11), rng.uniform(0.45, 0.8), rng.uniform(0.45, 0.8)))
             alb = alb * (1 - mask[..., None]) + (col**2.2).astype(np.float32) * mask[..., None]
             spec *= 1 - 0.6 * mask
 

@@ -242,8 +242,11 @@ def _is_complete(out_dir: Path, cfg: SynthConfig, seed: int, overlay: OverlaySpe
     except (OSError, ValueError):
         return False
     drawn = overlay.to_dict() if overlay is not None and overlay.active else None
-    return (meta.get("seed") == seed and meta.get("config") == json.loads(json.dumps(cfg.to_dict()))
-            and meta.get("overlay") == drawn)
+    return (
+        meta.get("seed") == seed
+        and meta.get("config") == json.loads(json.dumps(cfg.to_dict()))
+        and meta.get("overlay") == drawn
+    )
 
 
 def _dataset_job(args: tuple[Path, dict[str, Any], int, dict[str, Any]]) -> Path:
@@ -302,9 +305,7 @@ def make_dataset(
             over.setdefault("close_occluder", "force")
         if clean_seeds_fraction > 0 and np.random.default_rng([s, 4]).random() < clean_seeds_fraction:
             over.setdefault("undisturbed_seeds", True)
-        cfg = SynthConfig.sample(
-            rng, split=split, width=width, height=height, n_frames=n_frames, fps=fps, **over
-        )
+        cfg = SynthConfig.sample(rng, split=split, width=width, height=height, n_frames=n_frames, fps=fps, **over)
         flags: dict[str, Any] = {"video": video}
         if overlay is not None and overlay.active:
             flags["overlay"] = overlay

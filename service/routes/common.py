@@ -15,10 +15,10 @@ from colonlight.video import VideoInfo
 
 from ..errors import ApiError
 from ..jobs import Admission, JobManager
-from ..settings import Settings
-from ..uploads import Upload, receive_upload
 from ..schemas import JobLinks, JobOptions, JobStatus, iso
+from ..settings import Settings
 from ..store import JobRecord
+from ..uploads import Upload, receive_upload
 
 
 def parse_options(fields: dict[str, str]) -> JobOptions:
@@ -51,8 +51,13 @@ async def checked_upload(request: Request, manager: JobManager, settings: Settin
     admission: Admission | None = None
     try:
         with manager.receiving():
-            upload = await receive_upload(request, manager.new_upload_path(), settings.max_upload_bytes,
-                                          settings.upload_idle_seconds, settings.upload_min_bytes_per_s)
+            upload = await receive_upload(
+                request,
+                manager.new_upload_path(),
+                settings.max_upload_bytes,
+                settings.upload_idle_seconds,
+                settings.upload_min_bytes_per_s,
+            )
             options = parse_options(upload.fields)
             await manager.check_method(manager.method_spec(options))
             info = await manager.probe(upload)
@@ -80,9 +85,18 @@ def job_view(rec: JobRecord, manager: JobManager) -> JobStatus:
     elif total:
         progress = round(min(1.0, rec.frames_done / total), 4)
     return JobStatus(
-        id=rec.id, status=rec.status, filename=rec.filename, options=rec.options,  # type: ignore[arg-type]
-        frames_done=rec.frames_done, frames_total=total, progress=progress, error=rec.error, note=rec.note,
-        attempts=rec.attempts, created_at=iso(rec.created_at), started_at=iso(rec.started_at),  # type: ignore[arg-type]
+        id=rec.id,
+        status=rec.status,
+        filename=rec.filename,
+        options=rec.options,  # type: ignore[arg-type]
+        frames_done=rec.frames_done,
+        frames_total=total,
+        progress=progress,
+        error=rec.error,
+        note=rec.note,
+        attempts=rec.attempts,
+        created_at=iso(rec.created_at),
+        started_at=iso(rec.started_at),  # type: ignore[arg-type]
         finished_at=iso(rec.finished_at),
         expires_at=iso(rec.finished_at + manager.settings.result_ttl_seconds) if rec.finished_at is not None else None,
         links=JobLinks(self=base, video=f"{base}/video", gammas=f"{base}/gammas", frames=f"{base}/frames.zip"),

@@ -20,16 +20,23 @@ async def healthz() -> Health:
     "/readyz",
     summary="Readiness: the model is loaded and a job would be accepted",
     response_model=Readiness,
-    responses={503: {"model": Readiness, "description": "Loading the model, model failed, or all workers and the queue are full."}},
+    responses={
+        503: {
+            "model": Readiness,
+            "description": "Loading the model, model failed, or all workers and the queue are full.",
+        }
+    },
 )
 async def readyz(manager: ManagerDep) -> JSONResponse:
     ready, status, message = manager.readiness()
     waiting, running, admitted = manager.queue_state()
     s = manager.settings
     body = Readiness(
-        ready=ready, status=status, message=message, model=manager.model_info,  # type: ignore[arg-type]
+        ready=ready,
+        status=status,
+        message=message,
+        model=manager.model_info,  # type: ignore[arg-type]
         workers=WorkerState(total=s.workers, busy=min(running, s.workers)),
-        queue=QueueState(depth=waiting, capacity=s.capacity, admitted=admitted,
-                         uploads=manager.uploads_in_flight()),
+        queue=QueueState(depth=waiting, capacity=s.capacity, admitted=admitted, uploads=manager.uploads_in_flight()),
     )
     return JSONResponse(body.model_dump(mode="json"), status_code=200 if ready else 503)

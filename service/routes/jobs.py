@@ -18,8 +18,10 @@ from .common import checked_upload, job_view
 
 router = APIRouter(prefix="/v1", tags=["jobs"], dependencies=[Authenticated])
 
-JobId = Annotated[str, Path(pattern=JOB_ID_PATTERN, description="The id returned by POST /v1/jobs.",
-                            examples=["q0Xq3b9bYJgP4yL2m9Vb0w"])]
+JobId = Annotated[
+    str,
+    Path(pattern=JOB_ID_PATTERN, description="The id returned by POST /v1/jobs.", examples=["q0Xq3b9bYJgP4yL2m9Vb0w"]),
+]
 
 
 def _job(manager: JobManager, job_id: str) -> JobRecord:
@@ -33,8 +35,11 @@ def _finished(rec: JobRecord) -> None:
     if rec.status == "failed":
         raise ApiError(409, "job_failed", f"job {rec.id} failed, it has no results: {rec.error}")
     if rec.status != "succeeded":
-        raise ApiError(409, "job_not_finished",
-                       f"job {rec.id} is {rec.status} ({rec.frames_done} frames done); poll GET /v1/jobs/{rec.id}")
+        raise ApiError(
+            409,
+            "job_not_finished",
+            f"job {rec.id} is {rec.status} ({rec.frames_done} frames done); poll GET /v1/jobs/{rec.id}",
+        )
 
 
 @router.post(
@@ -53,8 +58,10 @@ def _finished(rec: JobRecord) -> None:
     response_model=JobStatus,
     openapi_extra={"requestBody": upload_request_body("The clip and the enhancement options.")},
     responses={
-        202: {"description": "Accepted: the job is queued.",
-              "headers": {"Location": {"description": "URL of the job's status.", "schema": {"type": "string"}}}},
+        202: {
+            "description": "Accepted: the job is queued.",
+            "headers": {"Location": {"description": "URL of the job's status.", "schema": {"type": "string"}}},
+        },
         **error_responses(400, 401, 408, 413, 415, 422, 503, 507),
     },
 )
@@ -65,8 +72,12 @@ async def submit_job(request: Request, response: Response, manager: ManagerDep, 
     return job_view(rec, manager)
 
 
-@router.get("/jobs/{job_id}", summary="Status and progress of a job", response_model=JobStatus,
-            responses=error_responses(401, 404, 422))
+@router.get(
+    "/jobs/{job_id}",
+    summary="Status and progress of a job",
+    response_model=JobStatus,
+    responses=error_responses(401, 404, 422),
+)
 def get_job(job_id: JobId, manager: ManagerDep) -> JobStatus:
     return job_view(_job(manager, job_id), manager)
 
@@ -81,9 +92,13 @@ def _file(path: FsPath, media_type: str, filename: str | None = None) -> FileRes
     "/jobs/{job_id}/video",
     summary="The enhanced video (H.264 mp4; range requests supported)",
     response_class=FileResponse,
-    responses={200: {"content": {"video/mp4": {"schema": {"type": "string", "format": "binary"}}},
-                     "description": "The enhanced clip; send `Range: bytes=a-b` for a part (206)."},
-               **error_responses(401, 404, 409, 422)},
+    responses={
+        200: {
+            "content": {"video/mp4": {"schema": {"type": "string", "format": "binary"}}},
+            "description": "The enhanced clip; send `Range: bytes=a-b` for a part (206).",
+        },
+        **error_responses(401, 404, 409, 422),
+    },
 )
 def get_video(job_id: JobId, manager: ManagerDep) -> FileResponse:
     rec = _job(manager, job_id)
@@ -95,11 +110,24 @@ def get_video(job_id: JobId, manager: ManagerDep) -> FileResponse:
     "/jobs/{job_id}/gammas",
     summary="The clip's gammas.json (exactly what `colonlight enhance` writes)",
     response_class=FileResponse,
-    responses={200: {"content": {"application/json": {"schema": {"type": "object"}, "example": {
-        "clip": "p7", "fps": 18.0, "method": "rnn", "frame_count": 36,
-        "frames": [{"index": 0, "time_s": 0.0, "source_time_s": 0.0, "gamma": 1.0, "seed": True}]}}},
-        "description": "Per-frame gammas and the settings that made them."},
-        **error_responses(401, 404, 409, 422)},
+    responses={
+        200: {
+            "content": {
+                "application/json": {
+                    "schema": {"type": "object"},
+                    "example": {
+                        "clip": "p7",
+                        "fps": 18.0,
+                        "method": "rnn",
+                        "frame_count": 36,
+                        "frames": [{"index": 0, "time_s": 0.0, "source_time_s": 0.0, "gamma": 1.0, "seed": True}],
+                    },
+                }
+            },
+            "description": "Per-frame gammas and the settings that made them.",
+        },
+        **error_responses(401, 404, 409, 422),
+    },
 )
 def get_gammas(job_id: JobId, manager: ManagerDep) -> FileResponse:
     rec = _job(manager, job_id)
@@ -111,9 +139,13 @@ def get_gammas(job_id: JobId, manager: ManagerDep) -> FileResponse:
     "/jobs/{job_id}/frames.zip",
     summary="The enhanced frames as a zip (frames/000000.png ...)",
     response_class=FileResponse,
-    responses={200: {"content": {"application/zip": {"schema": {"type": "string", "format": "binary"}}},
-                     "description": "The frames, stored uncompressed."},
-               **error_responses(401, 404, 409, 422, 507)},
+    responses={
+        200: {
+            "content": {"application/zip": {"schema": {"type": "string", "format": "binary"}}},
+            "description": "The frames, stored uncompressed.",
+        },
+        **error_responses(401, 404, 409, 422, 507),
+    },
 )
 async def get_frames_zip(job_id: JobId, manager: ManagerDep) -> FileResponse:
     rec = await anyio.to_thread.run_sync(_job, manager, job_id)
@@ -129,8 +161,12 @@ async def get_frames_zip(job_id: JobId, manager: ManagerDep) -> FileResponse:
     return FileResponse(path, media_type="application/zip", filename=f"{FsPath(rec.filename).stem}-frames.zip")
 
 
-@router.delete("/jobs/{job_id}", status_code=204, summary="Delete a job and its files (stops it if running)",
-               responses={204: {"description": "Deleted."}, **error_responses(401, 404, 422)})
+@router.delete(
+    "/jobs/{job_id}",
+    status_code=204,
+    summary="Delete a job and its files (stops it if running)",
+    responses={204: {"description": "Deleted."}, **error_responses(401, 404, 422)},
+)
 def delete_job(job_id: JobId, manager: ManagerDep) -> Response:
     if not manager.delete(job_id):
         raise ApiError(404, "job_not_found", f"no job {job_id} (never existed, deleted, or expired)")

@@ -21,9 +21,13 @@ router = APIRouter(dependencies=[Authenticated])
     tags=["metrics"],
     summary="Prometheus metrics: jobs by status, frames processed, processing seconds, queue depth",
     response_class=PlainTextResponse,
-    responses={200: {"content": {"text/plain": {"example": "# TYPE colonlight_queue_depth gauge\ncolonlight_queue_depth 0.0\n"}},
-                     "description": "Prometheus text exposition format 0.0.4."},
-               **error_responses(401)},
+    responses={
+        200: {
+            "content": {"text/plain": {"example": "# TYPE colonlight_queue_depth gauge\ncolonlight_queue_depth 0.0\n"}},
+            "description": "Prometheus text exposition format 0.0.4.",
+        },
+        **error_responses(401),
+    },
 )
 async def metrics(manager: ManagerDep) -> PlainTextResponse:
     assert manager.store is not None
@@ -34,17 +38,35 @@ async def metrics(manager: ManagerDep) -> PlainTextResponse:
     return PlainTextResponse(text, media_type=CONTENT_TYPE)
 
 
-@router.get("/v1/info", tags=["info"], summary="Version, methods, defaults and limits of this server",
-            response_model=ServiceInfo, responses=error_responses(401))
+@router.get(
+    "/v1/info",
+    tags=["info"],
+    summary="Version, methods, defaults and limits of this server",
+    response_model=ServiceInfo,
+    responses=error_responses(401),
+)
 async def info(manager: ManagerDep) -> ServiceInfo:
     s = manager.settings
     return ServiceInfo(
         version=__version__,
         methods=METHODS,
-        defaults={"method": s.method, "fps": s.fps, "model_size": s.model_size, "format": "png", "quality": 95,
-                  "frames": True, "model": manager.model_info},
-        limits={"max_upload_mb": s.max_upload_mb, "sync_max_seconds": s.sync_max_seconds,
-                "result_ttl_seconds": s.result_ttl_seconds, "workers": s.workers, "queue_size": s.queue_size,
-                "stream_max": s.stream_max, "stream_max_frame_mb": s.stream_max_frame_mb},
+        defaults={
+            "method": s.method,
+            "fps": s.fps,
+            "model_size": s.model_size,
+            "format": "png",
+            "quality": 95,
+            "frames": True,
+            "model": manager.model_info,
+        },
+        limits={
+            "max_upload_mb": s.max_upload_mb,
+            "sync_max_seconds": s.sync_max_seconds,
+            "result_ttl_seconds": s.result_ttl_seconds,
+            "workers": s.workers,
+            "queue_size": s.queue_size,
+            "stream_max": s.stream_max,
+            "stream_max_frame_mb": s.stream_max_frame_mb,
+        },
         auth_required=s.api_key is not None,
     )

@@ -155,7 +155,8 @@ class StreamSession:
 
     async def send(self, message: dict[str, Any] | bytes) -> None:
         payload: dict[str, Any] = (
-            {"type": "websocket.send", "bytes": message} if isinstance(message, bytes)
+            {"type": "websocket.send", "bytes": message}
+            if isinstance(message, bytes)
             else {"type": "websocket.send", "text": json.dumps(message, allow_nan=False)}
         )
         try:
@@ -170,8 +171,12 @@ class StreamSession:
         try:
             message: dict[str, Any] = await asyncio.wait_for(self.ws.receive(), idle)
         except asyncio.TimeoutError:
-            raise Closing(CLOSE_IDLE, "idle", f"no message for {idle:g} s (COLONLIGHT_STREAM_IDLE_SECONDS)",
-                          f"idle for {idle:g} s") from None
+            raise Closing(
+                CLOSE_IDLE,
+                "idle",
+                f"no message for {idle:g} s (COLONLIGHT_STREAM_IDLE_SECONDS)",
+                f"idle for {idle:g} s",
+            ) from None
         except (WebSocketDisconnect, OSError, RuntimeError):
             raise ClientGone("disconnected") from None
         if message["type"] == "websocket.disconnect":
@@ -204,21 +209,30 @@ class StreamSession:
             await self.manager.check_method(spec)
             method = await anyio.to_thread.run_sync(self.manager.methods.get, spec)
         except ValidationError as exc:
-            raise Closing(CLOSE_POLICY, "validation_error", f"bad start options: {short_errors(exc)}",
-                          "bad start options") from None
+            raise Closing(
+                CLOSE_POLICY, "validation_error", f"bad start options: {short_errors(exc)}", "bad start options"
+            ) from None
         except ApiError as exc:
             close = CLOSE_POLICY if exc.status == 422 else CLOSE_INTERNAL
             raise Closing(close, exc.code, exc.message, exc.code) from None
         except ColonlightError as exc:
-            raise Closing(CLOSE_INTERNAL, "model_unavailable", f"the model could not be loaded: {exc}",
-                          "model unavailable") from None
+            raise Closing(
+                CLOSE_INTERNAL, "model_unavailable", f"the model could not be loaded: {exc}", "model unavailable"
+            ) from None
         self.options = options
         self.stream = method.stream()
-        await self.send({
-            "type": "ready", "method": method.name, "model": method.model_info(), "parameters": method.parameters(),
-            "format": options.format, "frames": options.frames, "max_pixels": self.pixel_limit,
-            "max_frame_bytes": self.settings.stream_max_frame_bytes,
-        })
+        await self.send(
+            {
+                "type": "ready",
+                "method": method.name,
+                "model": method.model_info(),
+                "parameters": method.parameters(),
+                "format": options.format,
+                "frames": options.frames,
+                "max_pixels": self.pixel_limit,
+                "max_frame_bytes": self.settings.stream_max_frame_bytes,
+            }
+        )
 
     async def handle_text(self, message: dict[str, Any]) -> bool:
         """Act on a control message; False once the client has ended the stream."""
@@ -229,8 +243,9 @@ class StreamSession:
             try:
                 await self.start(StreamStart.model_validate(message))
             except ValidationError as exc:
-                raise Closing(CLOSE_POLICY, "validation_error", f"bad start options: {short_errors(exc)}",
-                              "bad start options") from None
+                raise Closing(
+                    CLOSE_POLICY, "validation_error", f"bad start options: {short_errors(exc)}", "bad start options"
+                ) from None
         elif kind == "frame":
             t = message.get("time")
             if t is not None and (isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t)):
@@ -273,14 +288,23 @@ class StreamSession:
         opts = self.options
         for res in results:
             meta = self.pending.popleft()
-            payload = (await anyio.to_thread.run_sync(encode_frame, res.frame, opts.format, opts.quality)
-                       if opts.frames else None)
+            payload = (
+                await anyio.to_thread.run_sync(encode_frame, res.frame, opts.format, opts.quality)
+                if opts.frames
+                else None
+            )
             record: dict[str, Any] = {
-                "type": "result", "index": meta.index, "time": meta.time, "gamma": finite(res.gamma),
+                "type": "result",
+                "index": meta.index,
+                "time": meta.time,
+                "gamma": finite(res.gamma),
                 **{k: finite(v) for k, v in res.info.items()},
-                "width": meta.width, "height": meta.height, "received": round(meta.received, 6),
+                "width": meta.width,
+                "height": meta.height,
+                "received": round(meta.received, 6),
                 "latency_ms": round((time.time() - meta.received) * 1000, 3),
-                "format": opts.format if opts.frames else None, "bytes": len(payload) if payload else 0,
+                "format": opts.format if opts.frames else None,
+                "bytes": len(payload) if payload else 0,
             }
             await self.send(record)
             if payload is not None:
@@ -338,17 +362,28 @@ async def stream(ws: WebSocket) -> None:
         if not header_key_ok(ws, settings):  # a browser: the key may come in the start message
             first = await session.receive()
             if not key_is_valid(settings, start_key(first)):
-                raise Closing(CLOSE_POLICY, "unauthorized",
-                              "this server requires an API key: send it as an X-API-Key header, as Authorization: "
-                              'Bearer <key>, or as "api_key" in the start message', "unauthorized")
+                raise Closing(
+                    CLOSE_POLICY,
+                    "unauthorized",
+                    "this server requires an API key: send it as an X-API-Key header, as Authorization: "
+                    'Bearer <key>, or as "api_key" in the start message',
+                    "unauthorized",
+                )
         if settings.stream_max == 0:
-            raise Closing(CLOSE_POLICY, "streams_off", "streams are turned off on this server (COLONLIGHT_STREAM_MAX=0)",
-                          "streams are turned off")
+            raise Closing(
+                CLOSE_POLICY,
+                "streams_off",
+                "streams are turned off on this server (COLONLIGHT_STREAM_MAX=0)",
+                "streams are turned off",
+            )
         if not slots.take():
             manager.metrics.inc("rejected", "streams_full")
-            raise Closing(CLOSE_BUSY, "busy",
-                          f"the server has {slots.limit} streams open, its limit (COLONLIGHT_STREAM_MAX); try again later",
-                          f"busy: {slots.limit} streams open, try again later")
+            raise Closing(
+                CLOSE_BUSY,
+                "busy",
+                f"the server has {slots.limit} streams open, its limit (COLONLIGHT_STREAM_MAX); try again later",
+                f"busy: {slots.limit} streams open, try again later",
+            )
         holding = True
         await session.run(first)
         close = (CLOSE_NORMAL, "end of stream")
@@ -363,8 +398,9 @@ async def stream(ws: WebSocket) -> None:
     except Exception:  # noqa: BLE001 - a bug ends this stream, never the server; the client gets no traceback
         log.exception("stream failed after %d frames", session.frames_out)
         try:
-            await session.send({"type": "error", "code": "internal_error",
-                                "message": "internal error; see the server log"})
+            await session.send(
+                {"type": "error", "code": "internal_error", "message": "internal error; see the server log"}
+            )
             close = (CLOSE_INTERNAL, "internal error")
         except ClientGone:
             pass

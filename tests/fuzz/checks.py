@@ -112,8 +112,9 @@ def check_whole_leftovers(clip_dir: Path) -> None:
         assert video_frames(clip_dir / "enhanced.mp4") >= 2
 
 
-def check_batch(out: Path, console: str, exit_code: int, clips: dict[str, Path], video: bool,
-                must_succeed: set[str]) -> dict[str, dict[str, Any]]:
+def check_batch(
+    out: Path, console: str, exit_code: int, clips: dict[str, Path], video: bool, must_succeed: set[str]
+) -> dict[str, dict[str, Any]]:
     """The properties of a finished ``colonlight enhance`` of ``clips`` (name -> source) into ``out``.
 
     Returns the manifest's entries by clip name.
@@ -162,8 +163,9 @@ def run_measured(cmd: list[str], timeout: float) -> tuple[int, str, int]:
     """Run ``cmd`` in its own process group; its exit code, stderr and peak RSS in bytes. Hang (the whole group
     killed) past ``timeout``. A tiny launcher forks it, as Linux carries a process's peak RSS across exec (a child
     forked straight from pytest would report pytest's size)."""
-    proc = subprocess.Popen([sys.executable, "-c", _LAUNCHER, *cmd], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            start_new_session=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _LAUNCHER, *cmd], stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True
+    )
     try:
         stdout, stderr = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:

@@ -213,12 +213,17 @@ FAMILIES: dict[str, st.SearchStrategy[Case]] = {
     "flips": st.builds(Case, seed_names, st.lists(flips, min_size=1, max_size=8).map(tuple)),
     "cuts": st.builds(Case, seed_names, st.tuples(cuts)),
     "chunks": st.builds(Case, seed_names, st.lists(duplicates | drops, min_size=1, max_size=3).map(tuple)),
-    "packets": st.builds(Case, seed_names, st.just(()),
-                         st.builds(Packets, packet_numbers, packet_numbers)),
-    "foreign": st.builds(Case, seed_names, st.lists(splices, max_size=1).map(tuple), st.none(),
-                         st.sampled_from(SUFFIXES)),
-    "mixed": st.builds(Case, seed_names, st.lists(byte_damages, min_size=1, max_size=4).map(tuple),
-                       st.none() | st.builds(Packets, packet_numbers, packet_numbers), suffixes),
+    "packets": st.builds(Case, seed_names, st.just(()), st.builds(Packets, packet_numbers, packet_numbers)),
+    "foreign": st.builds(
+        Case, seed_names, st.lists(splices, max_size=1).map(tuple), st.none(), st.sampled_from(SUFFIXES)
+    ),
+    "mixed": st.builds(
+        Case,
+        seed_names,
+        st.lists(byte_damages, min_size=1, max_size=4).map(tuple),
+        st.none() | st.builds(Packets, packet_numbers, packet_numbers),
+        suffixes,
+    ),
 }
 
 EXAMPLES_ENV = "COLONLIGHT_FUZZ_EXAMPLES"
@@ -229,5 +234,11 @@ def fuzz_settings(default: int) -> settings:
     timeout instead), in a fixed order without an example database: a failure in CI reproduces anywhere."""
     raw = os.environ.get(EXAMPLES_ENV, "").strip()
     n = int(raw) if raw.isdigit() and int(raw) > 0 else default
-    return settings(max_examples=n, deadline=None, derandomize=True, database=None, print_blob=False,
-                    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+    return settings(
+        max_examples=n,
+        deadline=None,
+        derandomize=True,
+        database=None,
+        print_blob=False,
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+    )

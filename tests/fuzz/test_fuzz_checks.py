@@ -49,8 +49,9 @@ def stray_file(out: Path, console: str) -> str:
 
 
 @pytest.mark.parametrize("spoil", [cut_frame, leave_temporary, lose_gammas, miscount, traceback_shown, stray_file])
-def test_checks_catch_spoiled_outputs(seeds: dict[str, Path], tmp_path: Path,
-                                      spoil: Callable[[Path, str], str]) -> None:
+def test_checks_catch_spoiled_outputs(
+    seeds: dict[str, Path], tmp_path: Path, spoil: Callable[[Path, str], str]
+) -> None:
     inputs = tmp_path / "in"
     inputs.mkdir()
     shutil.copyfile(seeds["mkv-audio"], inputs / "good.mkv")

@@ -16,12 +16,12 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from colonlight_cli.main import app
 from hypothesis import event, example, given
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from colonlight.pipeline import peak_rss_bound
-from colonlight_cli.main import app
 
 from .checks import bounded, check_batch, run_measured
 from .corrupt import FAMILIES, SEED_OUTPUT_FRAMES, Case, Cut, fuzz_settings
@@ -36,8 +36,18 @@ CASE_SECONDS = 60.0  # a case takes well under a second; past this it hangs
 
 
 def enhance_args(inputs: list[Path], out: Path, video: bool) -> list[str]:
-    return ["enhance", *map(str, inputs), "-o", str(out), *GAMMA, "-j", "1", "--max-pixels", str(MAX_PIXELS),
-            "--video" if video else "--no-video"]
+    return [
+        "enhance",
+        *map(str, inputs),
+        "-o",
+        str(out),
+        *GAMMA,
+        "-j",
+        "1",
+        "--max-pixels",
+        str(MAX_PIXELS),
+        "--video" if video else "--no-video",
+    ]
 
 
 def run_in_process(args: list[str]) -> tuple[int, str]:
@@ -61,8 +71,9 @@ def check_case(case: Case, video: bool, seeds: dict[str, Path], case_dir: Callab
     with case_dir() as d:
         inputs, clips = lay_out(case, seeds, d)
         out = d / "out"
-        code, console = bounded(lambda: run_in_process(enhance_args([inputs], out, video)), CASE_SECONDS,
-                                f"colonlight enhance of {case}")
+        code, console = bounded(
+            lambda: run_in_process(enhance_args([inputs], out, video)), CASE_SECONDS, f"colonlight enhance of {case}"
+        )
         entries = check_batch(out, console, code, clips, video, must_succeed={"good"})
         assert entries["good"]["frames"] == SEED_OUTPUT_FRAMES
         bad = entries["clip"]
@@ -80,29 +91,33 @@ def test_flipped_bytes(case: Case, video: bool, seeds: dict[str, Path], case_dir
 @fuzz_settings(12)
 @given(case=FAMILIES["cuts"], video=st.booleans())
 @example(case=Case("avi", (Cut(0),)), video=False)  # found: a 0-byte clip failed but left an empty OUT/clip/
-def test_truncated_at_any_offset(case: Case, video: bool, seeds: dict[str, Path],
-                                 case_dir: Callable[[], Iterator[Path]]) -> None:
+def test_truncated_at_any_offset(
+    case: Case, video: bool, seeds: dict[str, Path], case_dir: Callable[[], Iterator[Path]]
+) -> None:
     check_case(case, video, seeds, case_dir)
 
 
 @fuzz_settings(12)
 @given(case=FAMILIES["chunks"], video=st.booleans())
-def test_duplicated_and_dropped_chunks(case: Case, video: bool, seeds: dict[str, Path],
-                                       case_dir: Callable[[], Iterator[Path]]) -> None:
+def test_duplicated_and_dropped_chunks(
+    case: Case, video: bool, seeds: dict[str, Path], case_dir: Callable[[], Iterator[Path]]
+) -> None:
     check_case(case, video, seeds, case_dir)
 
 
 @fuzz_settings(12)
 @given(case=FAMILIES["packets"], video=st.booleans())
-def test_duplicated_and_dropped_packets(case: Case, video: bool, seeds: dict[str, Path],
-                                        case_dir: Callable[[], Iterator[Path]]) -> None:
+def test_duplicated_and_dropped_packets(
+    case: Case, video: bool, seeds: dict[str, Path], case_dir: Callable[[], Iterator[Path]]
+) -> None:
     check_case(case, video, seeds, case_dir)
 
 
 @fuzz_settings(12)
 @given(case=FAMILIES["foreign"], video=st.booleans())
-def test_foreign_headers_and_wrong_suffixes(case: Case, video: bool, seeds: dict[str, Path],
-                                            case_dir: Callable[[], Iterator[Path]]) -> None:
+def test_foreign_headers_and_wrong_suffixes(
+    case: Case, video: bool, seeds: dict[str, Path], case_dir: Callable[[], Iterator[Path]]
+) -> None:
     check_case(case, video, seeds, case_dir)
 
 
@@ -119,8 +134,9 @@ def colonlight_cmd() -> list[str]:
 
 @fuzz_settings(3)
 @given(case=FAMILIES["mixed"])
-def test_real_process_within_the_memory_bound(case: Case, seeds: dict[str, Path],
-                                              case_dir: Callable[[], Iterator[Path]]) -> None:
+def test_real_process_within_the_memory_bound(
+    case: Case, seeds: dict[str, Path], case_dir: Callable[[], Iterator[Path]]
+) -> None:
     """A real ``colonlight enhance`` process (with --video): the same properties, its own time bound, and a peak
     RSS within the written bound for the largest frame the pixel cap admits."""
     with case_dir() as d:

@@ -40,9 +40,14 @@ ROUTES = ("/v1/jobs", "/v1/enhance")
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServiceServer]:
     data = tmp_path_factory.mktemp("fuzz-service") / "data"
-    env = {"COLONLIGHT_METHOD": "gamma", "COLONLIGHT_WORKERS": "1", "COLONLIGHT_QUEUE_SIZE": "2",
-           "COLONLIGHT_MAX_UPLOAD_MB": "1", "COLONLIGHT_SYNC_MAX_SECONDS": "5",
-           "COLONLIGHT_MAX_PIXELS": str(MAX_PIXELS)}
+    env = {
+        "COLONLIGHT_METHOD": "gamma",
+        "COLONLIGHT_WORKERS": "1",
+        "COLONLIGHT_QUEUE_SIZE": "2",
+        "COLONLIGHT_MAX_UPLOAD_MB": "1",
+        "COLONLIGHT_SYNC_MAX_SECONDS": "5",
+        "COLONLIGHT_MAX_PIXELS": str(MAX_PIXELS),
+    }
     with ServiceServer(data, env) as srv:
         yield srv
         log = srv.log()
@@ -121,14 +126,24 @@ def check_left_behind(server: ServiceServer) -> None:
     assert not list((data / "jobs").iterdir()), list((data / "jobs").iterdir())  # every job was deleted
 
 
-def check_case(case: Case, route: str, frames: bool, seeds: dict[str, Path], server: ServiceServer,
-               client: httpx.Client, case_dir: Callable[[], Iterator[Path]]) -> None:
+def check_case(
+    case: Case,
+    route: str,
+    frames: bool,
+    seeds: dict[str, Path],
+    server: ServiceServer,
+    client: httpx.Client,
+    case_dir: Callable[[], Iterator[Path]],
+) -> None:
     log_before = len(server.log_path.read_bytes())
     with case_dir() as d:
         clip = case.write(seeds, d)
         try:
-            resp = client.post(route, files={"file": (clip.name, clip.read_bytes(), "video/mp4")},
-                               data={"method": "gamma", "frames": str(frames).lower()})
+            resp = client.post(
+                route,
+                files={"file": (clip.name, clip.read_bytes(), "video/mp4")},
+                data={"method": "gamma", "frames": str(frames).lower()},
+            )
         except httpx.TimeoutException:
             raise Hang(f"POST {route} of {case} had no answer within {CASE_SECONDS:g} s") from None
         event(f"{route}: {resp.status_code}")
@@ -156,45 +171,83 @@ routes = st.sampled_from(ROUTES)
 
 @fuzz_settings(8)
 @given(case=FAMILIES["flips"], route=routes, frames=st.booleans())
-def test_flipped_bytes(case: Case, route: str, frames: bool, seeds: dict[str, Path], server: ServiceServer,
-                       client: httpx.Client, case_dir: Callable[[], Iterator[Path]]) -> None:
+def test_flipped_bytes(
+    case: Case,
+    route: str,
+    frames: bool,
+    seeds: dict[str, Path],
+    server: ServiceServer,
+    client: httpx.Client,
+    case_dir: Callable[[], Iterator[Path]],
+) -> None:
     check_case(case, route, frames, seeds, server, client, case_dir)
 
 
 @fuzz_settings(8)
 @given(case=FAMILIES["cuts"], route=routes, frames=st.booleans())
-def test_truncated_at_any_offset(case: Case, route: str, frames: bool, seeds: dict[str, Path],
-                                 server: ServiceServer, client: httpx.Client,
-                                 case_dir: Callable[[], Iterator[Path]]) -> None:
+def test_truncated_at_any_offset(
+    case: Case,
+    route: str,
+    frames: bool,
+    seeds: dict[str, Path],
+    server: ServiceServer,
+    client: httpx.Client,
+    case_dir: Callable[[], Iterator[Path]],
+) -> None:
     check_case(case, route, frames, seeds, server, client, case_dir)
 
 
 @fuzz_settings(8)
 @given(case=FAMILIES["chunks"], route=routes, frames=st.booleans())
-def test_duplicated_and_dropped_chunks(case: Case, route: str, frames: bool, seeds: dict[str, Path],
-                                       server: ServiceServer, client: httpx.Client,
-                                       case_dir: Callable[[], Iterator[Path]]) -> None:
+def test_duplicated_and_dropped_chunks(
+    case: Case,
+    route: str,
+    frames: bool,
+    seeds: dict[str, Path],
+    server: ServiceServer,
+    client: httpx.Client,
+    case_dir: Callable[[], Iterator[Path]],
+) -> None:
     check_case(case, route, frames, seeds, server, client, case_dir)
 
 
 @fuzz_settings(8)
 @given(case=FAMILIES["packets"], route=routes, frames=st.booleans())
-def test_duplicated_and_dropped_packets(case: Case, route: str, frames: bool, seeds: dict[str, Path],
-                                        server: ServiceServer, client: httpx.Client,
-                                        case_dir: Callable[[], Iterator[Path]]) -> None:
+def test_duplicated_and_dropped_packets(
+    case: Case,
+    route: str,
+    frames: bool,
+    seeds: dict[str, Path],
+    server: ServiceServer,
+    client: httpx.Client,
+    case_dir: Callable[[], Iterator[Path]],
+) -> None:
     check_case(case, route, frames, seeds, server, client, case_dir)
 
 
 @fuzz_settings(8)
 @given(case=FAMILIES["foreign"], route=routes, frames=st.booleans())
-def test_foreign_headers_and_wrong_suffixes(case: Case, route: str, frames: bool, seeds: dict[str, Path],
-                                            server: ServiceServer, client: httpx.Client,
-                                            case_dir: Callable[[], Iterator[Path]]) -> None:
+def test_foreign_headers_and_wrong_suffixes(
+    case: Case,
+    route: str,
+    frames: bool,
+    seeds: dict[str, Path],
+    server: ServiceServer,
+    client: httpx.Client,
+    case_dir: Callable[[], Iterator[Path]],
+) -> None:
     check_case(case, route, frames, seeds, server, client, case_dir)
 
 
 @fuzz_settings(8)
 @given(case=FAMILIES["mixed"], route=routes, frames=st.booleans())
-def test_mixed_damage(case: Case, route: str, frames: bool, seeds: dict[str, Path], server: ServiceServer,
-                      client: httpx.Client, case_dir: Callable[[], Iterator[Path]]) -> None:
+def test_mixed_damage(
+    case: Case,
+    route: str,
+    frames: bool,
+    seeds: dict[str, Path],
+    server: ServiceServer,
+    client: httpx.Client,
+    case_dir: Callable[[], Iterator[Path]],
+) -> None:
     check_case(case, route, frames, seeds, server, client, case_dir)
