@@ -86,9 +86,7 @@ def enhance(
     ),
     fmt: str = typer.Option("png", "--format", "-f", envvar="COLONLIGHT_FORMAT", help="Frame image format: png | jpg."),
     quality: int = typer.Option(95, "--quality", min=1, max=100, help="JPEG quality."),
-    pattern: str | None = typer.Option(
-        None, "--pattern", help="Glob on clip paths/names, e.g. '*.mp4' or 'site1/*'."
-    ),
+    pattern: str | None = typer.Option(None, "--pattern", help="Glob on clip paths/names, e.g. '*.mp4' or 'site1/*'."),
     workers: int | None = typer.Option(
         None,
         "--workers",

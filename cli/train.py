@@ -93,7 +93,10 @@ def train_cmd(
         help="Fraction of synthetic clips whose first two frames are undisturbed.",
     ),
     head: str = typer.Option(
-        "gamma", "--head", help="gamma (the paper's: one gamma per frame) | gain-gamma (a gain and a gamma per frame)."
+        "gamma",
+        "--head",
+        help="gamma (the paper's: one gamma per frame) | gain-gamma (a gain and a gamma per frame) | "
+        "curve (a monotone tone curve per frame).",
     ),
     objective: str = typer.Option(
         "paper",

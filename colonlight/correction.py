@@ -8,6 +8,11 @@ One place decides it for training, inference and export, so they cannot drift ap
   Why two numbers: a recorder's lighting changes are a gain (exposure, light power) and a tone-curve change
   (contrast): ``image = g * clean ** k``. Its inverse ``clean = g**(-1/k) * image ** (1/k)`` is in this family,
   while one gamma can undo only one of the two.
+* head ``curve``: raw ``z`` of ``CURVE_SEGMENTS`` numbers -> a monotone piecewise-linear tone curve through
+  ``(0, 0)`` with slope ``softplus(z_k + SLOPE_OFFSET)`` on segment ``k`` of ``CURVE_KNOTS``, ``out = min(1, f(in))``.
+  Zero outputs are the identity. Why: a recorder's response is not a power law (a highlight shoulder, a lagging
+  exposure acting before it), and one gamma, or a gain and a gamma, leave part of a lighting change that a
+  global curve removes (the per-frame oracle curve tracks where the oracle gamma fails, issue 12).
 
 Values are in [0, 1]; 8-bit frames are corrected through a 256-entry table (``curves.gain_gamma_lut``).
 """
@@ -15,7 +20,9 @@ Values are in [0, 1]; 8-bit frames are corrected through a 256-entry table (``cu
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -42,3 +49,43 @@ def apply_gain_gamma(frames: Tensor, gain: Tensor, gamma: Tensor, eps: float = 1
         gamma = gamma.unsqueeze(-1)
         gain = gain.unsqueeze(-1)
     return (gain * frames.clamp_min(eps) ** gamma).clamp_max(1.0)
+
+
+#: Segments of the curve head's tone curve, and their end points on [0, 1]: spaced on a square-root scale so
+#: the dark values a colonoscope's lumen fills get as many segments as the bright ones.
+CURVE_SEGMENTS = 8
+CURVE_KNOTS = tuple((k / CURVE_SEGMENTS) ** 2 for k in range(CURVE_SEGMENTS + 1))
+#: ``softplus(0 + SLOPE_OFFSET) == 1``: a zero output layer gives the identity curve.
+SLOPE_OFFSET = math.log(math.e - 1.0)
+#: Steepest slope a segment may take (x ** 0.25 near 0.015 is about 23); beyond it the slope is clamped.
+CURVE_SLOPE_MAX = 64.0
+
+
+def curve_slopes_from_raw(z: Tensor) -> Tensor:
+    """``(..., CURVE_SEGMENTS)`` raw head outputs -> the curve's slope on each segment; differentiable."""
+    return torch.nn.functional.softplus(z + SLOPE_OFFSET).clamp_max(CURVE_SLOPE_MAX)
+
+
+def apply_curve(frames: Tensor, slopes: Tensor) -> Tensor:
+    """Differentiable ``min(1, f(I))`` for the curve with ``slopes`` ``(..., K)`` broadcast over ``(..., 3, H, W)``."""
+    out = torch.zeros_like(frames)
+    for k in range(CURVE_SEGMENTS):
+        lo, width = CURVE_KNOTS[k], CURVE_KNOTS[k + 1] - CURVE_KNOTS[k]
+        slope = slopes[..., k]
+        while slope.ndim < frames.ndim:
+            slope = slope.unsqueeze(-1)
+        out = out + slope * (frames - lo).clamp(0.0, width)
+    return out.clamp_max(1.0)
+
+
+def curve_values(z: Sequence[float]) -> tuple[np.ndarray, bool]:
+    """The same curve for one frame's raw outputs (inference): its values at ``CURVE_KNOTS`` in float64 (first
+    0, non-decreasing, not yet capped at 1) and whether a slope was clamped. Non-finite outputs raise ValueError."""
+    raw = np.asarray(z, dtype=np.float64)
+    if raw.shape != (CURVE_SEGMENTS,) or not np.all(np.isfinite(raw)):
+        raise ValueError(f"the curve head gives {CURVE_SEGMENTS} finite numbers, got {list(z)!r}")
+    slopes = np.logaddexp(0.0, raw + SLOPE_OFFSET)  # softplus, without overflow
+    clamped = bool(np.any(slopes > CURVE_SLOPE_MAX))
+    slopes = np.minimum(slopes, CURVE_SLOPE_MAX)
+    values = np.concatenate([[0.0], np.cumsum(slopes * np.diff(CURVE_KNOTS))])
+    return values, clamped

@@ -7,6 +7,8 @@ frame is applied to the full-resolution frame.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import cv2
 import numpy as np
 
@@ -38,6 +40,18 @@ def gain_gamma_lut(gain: float, gamma: float) -> np.ndarray:
     if not np.isfinite(gamma) or gamma <= 0:
         raise OptionError(f"gamma must be finite and > 0, got {gamma!r}")
     return np.rint(255.0 * np.minimum(1.0, gain * _LEVELS**gamma)).astype(np.uint8)
+
+
+def curve_lut(knots: Sequence[float], values: Sequence[float]) -> np.ndarray:
+    """The table of ``round(255 * min(1, f(v / 255)))`` for the piecewise-linear curve ``f`` through
+    ``(knots[i], values[i])``, as uint8. ``values`` must be finite and non-decreasing, ``knots`` increasing."""
+    x = np.asarray(knots, dtype=np.float64)
+    y = np.asarray(values, dtype=np.float64)
+    if x.shape != y.shape or x.ndim != 1 or len(x) < 2 or np.any(np.diff(x) <= 0):
+        raise OptionError("a curve needs as many increasing knots as values (at least 2)")
+    if not np.all(np.isfinite(y)) or np.any(np.diff(y) < 0):
+        raise OptionError("a curve's values must be finite and non-decreasing")
+    return np.rint(255.0 * np.clip(np.interp(_LEVELS, x, y), 0.0, 1.0)).astype(np.uint8)
 
 
 def apply_lut(frame: np.ndarray, lut: np.ndarray) -> np.ndarray:

@@ -30,7 +30,25 @@ from .video import is_video
 
 #: Suffixes taken as videos even before probing, so that a broken file with such a name is reported, not ignored.
 VIDEO_SUFFIXES = frozenset(
-    [".mp4", ".m4v", ".mov", ".avi", ".mkv", ".mpg", ".mpeg", ".ts", ".mts", ".m2ts", ".webm", ".wmv", ".flv", ".3gp", ".ogv", ".mxf", ".vob"]
+    [
+        ".mp4",
+        ".m4v",
+        ".mov",
+        ".avi",
+        ".mkv",
+        ".mpg",
+        ".mpeg",
+        ".ts",
+        ".mts",
+        ".m2ts",
+        ".webm",
+        ".wmv",
+        ".flv",
+        ".3gp",
+        ".ogv",
+        ".mxf",
+        ".vob",
+    ]
 )
 _SIDE_SUFFIXES = frozenset([".json", ".txt", ".csv", ".md", ".yaml", ".yml", ".xml", ".log", ".ini"])
 #: The lock file every ``colonlight enhance`` output folder holds (see :mod:`colonlight.outdir`): a folder

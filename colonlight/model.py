@@ -10,7 +10,8 @@ Two heads share that backbone (see :mod:`colonlight.correction` for what their o
 * ``gamma`` (the paper's, the authors' checkpoint): ``linear(32->1) + ReLU = a``, gamma ``1/a``;
 * ``gain-gamma`` (colonlight's default model): ``linear(32->2)``, raw outputs mapped to a gain and a gamma, so
   the correction ``gain * I ** gamma`` can undo a gain jump and a tone-curve change at once, which one gamma
-  cannot.
+  cannot;
+* ``curve``: ``linear(32->8)``, the slopes of a monotone tone curve per frame (``correction``).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from .correction import CURVE_SEGMENTS
 from .errors import OptionError
 
 HIDDEN = 32
@@ -26,7 +28,7 @@ FORGET_BIAS = 1.0
 
 State = tuple[Tensor, Tensor]
 #: Head name -> number of outputs of ``out_linear``.
-HEAD_OUTPUTS = {"gamma": 1, "gain-gamma": 2}
+HEAD_OUTPUTS = {"gamma": 1, "gain-gamma": 2, "curve": CURVE_SEGMENTS}
 
 
 class ConvLSTMCell(nn.Module):

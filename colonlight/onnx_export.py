@@ -21,8 +21,8 @@ import torch
 from . import __version__
 from .atomic import write_bytes_atomic, write_json_atomic
 from .checkpoint import LoadedWeights
-from .correction import LOG_GAIN_SPAN, LOG_GAMMA_SPAN
-from .methods.rnn import GAIN_MAX, GAIN_MIN, GAMMA_MAX, GAMMA_MIN, SEED_FRAMES
+from .correction import CURVE_KNOTS, CURVE_SLOPE_MAX, LOG_GAIN_SPAN, LOG_GAMMA_SPAN, SLOPE_OFFSET
+from .methods.rnn import CURVE_SUMMARY_AT, GAIN_MAX, GAIN_MIN, GAMMA_MAX, GAMMA_MIN, SEED_FRAMES
 from .onnx_step import ExportError, StepSignature, compare_with_torch, cpu_session, export_model_bytes
 
 SIDECAR_FORMAT = "colonlight-onnx-step"
@@ -57,7 +57,7 @@ def sidecar_record(
     """Everything a host needs around the graph (see the README's "C++ SLAM host" section)."""
     card = weights.card
     seeds = weights.seed_frames if weights.seed_frames is not None else SEED_FRAMES
-    gain_gamma = getattr(weights.net, "head", "gamma") == "gain-gamma" and sig.head_names == ("z",)
+    head = getattr(weights.net, "head", "gamma") if sig.head_names == ("z",) else "gamma"
     outputs = [{**d, "shape": list(shape), "dtype": "float32"} for d, shape in zip(described, sig.head_shapes)] + [
         {
             "name": f"{n}_out",
@@ -108,11 +108,10 @@ def sidecar_record(
             "rule": f"the first {seeds} frames of a clip run the step (they build the state) but are passed "
             "through unchanged (gamma 1.0)",
         },
-        "gamma": card.get("gamma") or _default_gamma_rule(sig, gain_gamma),
+        "gamma": card.get("gamma") or _default_gamma_rule(sig, head),
         "lut": {
-            "build": f"lut[v] = round(255 * {'min(1, gain * (v / 255) ^ gamma)' if gain_gamma else '(v / 255) ^ gamma'})"
-            " for v = 0..255, in double precision, rounding half to even (std::nearbyint in the default "
-            "rounding mode), as uint8",
+            "build": f"lut[v] = round(255 * {LUT_FORMULA[head]}) for v = 0..255, in double precision, rounding "
+            "half to even (std::nearbyint in the default rounding mode), as uint8",
             "apply": "out = lut[in] for every sample of every channel of the full-resolution uint8 frame "
             "(cv::LUT); out = in ^ gamma on [0, 1] values, gamma < 1 brightens",
         },
@@ -124,10 +123,29 @@ def sidecar_record(
     }
 
 
-def _default_gamma_rule(sig: StepSignature, gain_gamma: bool) -> dict[str, Any]:
-    """How colonlight turns the output into the correction it applies (``methods/rnn.clamp_gamma`` and
-    ``clamp_gain_gamma``, ``correction.gain_gamma_values``)."""
-    if gain_gamma:
+#: Head -> the value of one table entry, in the words of the sidecar's ``lut.build``.
+LUT_FORMULA = {
+    "gamma": "(v / 255) ^ gamma",
+    "gain-gamma": "min(1, gain * (v / 255) ^ gamma)",
+    "curve": "min(1, f(v / 255)), f the curve of 'gamma'",
+}
+
+
+def _default_gamma_rule(sig: StepSignature, head: str) -> dict[str, Any]:
+    """How colonlight turns the output into the correction it applies (``methods/rnn.clamp_gamma``,
+    ``clamp_gain_gamma`` and ``curve_correction``; ``correction.gain_gamma_values`` and ``curve_values``)."""
+    if head == "curve":
+        return {
+            "from_output": "z",
+            "knots": list(CURVE_KNOTS),
+            "formula": f"slope[k] = min({CURVE_SLOPE_MAX}, log(1 + exp(z[k] + {SLOPE_OFFSET!r}))) for k = 0..7; "
+            "y[0] = 0, y[k+1] = y[k] + slope[k] * (knots[k+1] - knots[k]); f is the piecewise-linear curve "
+            "through (knots[k], y[k]); out = min(1, f(in)) on [0, 1] values",
+            "clamping": "z not finite -> the frame unchanged",
+            "summary_gamma": f"the 'gamma' colonlight records is log f({CURVE_SUMMARY_AT}) / log {CURVE_SUMMARY_AT}, "
+            f"kept in [{GAMMA_MIN}, {GAMMA_MAX}]: a summary, the curve is what is applied",
+        }
+    if head == "gain-gamma":
         return {
             "from_output": "z",
             "formula": f"gamma = exp({LOG_GAMMA_SPAN} * tanh(z[0])), gain = exp({LOG_GAIN_SPAN} * tanh(z[1])); "

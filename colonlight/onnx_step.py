@@ -39,6 +39,13 @@ GAIN_GAMMA_OUTPUT = {
     "name": "z",
     "meaning": "the network's raw outputs (z0, z1); they give a gamma and a gain (see 'gamma')",
 }
+#: The same for the curve head's one (1, 8) output.
+CURVE_OUTPUT = {
+    "name": "z",
+    "meaning": "the network's raw outputs z0..z7; they give the slopes of a monotone tone curve (see 'gamma')",
+}
+#: Head name -> the description of its one output.
+HEAD_OUTPUT = {"gamma": DEFAULT_OUTPUT, "gain-gamma": GAIN_GAMMA_OUTPUT, "curve": CURVE_OUTPUT}
 
 
 class ExportError(ColonlightError):
@@ -118,7 +125,7 @@ def describe_outputs(
     card: dict[str, Any], dict_names: Sequence[str | None], head: str | None = None
 ) -> list[dict[str, Any]]:
     """One description per head output: from the card when it lists as many valid names, else from the
-    network's head (``gamma``: ``a``; ``gain-gamma``: ``z``), else generic names."""
+    network's head (``gamma``: ``a``; ``gain-gamma`` and ``curve``: ``z``), else generic names."""
     n = len(dict_names)
     from_card = _card_outputs(card)
     if len(from_card) == n and all(_NAME.match(str(d.get("name", ""))) for d in from_card):
@@ -126,7 +133,7 @@ def describe_outputs(
     if all(name is not None and _NAME.match(name) for name in dict_names):
         return [{"name": name, "meaning": "not described by the weights' card"} for name in dict_names]  # type: ignore[misc]
     if n == 1:
-        return [dict(GAIN_GAMMA_OUTPUT if head == "gain-gamma" else DEFAULT_OUTPUT)]
+        return [dict(HEAD_OUTPUT.get(head or "gamma", DEFAULT_OUTPUT))]
     return [{"name": f"out{i}", "meaning": "not described by the weights' card"} for i in range(n)]
 
 

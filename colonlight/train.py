@@ -32,7 +32,7 @@ from safetensors.torch import load_file, save_file
 
 from .atomic import atomic_path, write_json_atomic
 from .checkpoint import load_weights, save_weights
-from .correction import apply_gain_gamma, gain_gamma_from_raw
+from .correction import apply_curve, apply_gain_gamma, curve_slopes_from_raw, gain_gamma_from_raw
 from .errors import InputError
 from .limits import DEFAULT_FPS
 from .methods.rnn import DEFAULT_MODEL_SIZE
@@ -61,7 +61,7 @@ class TrainConfig:
     ssim_window: int = 11
     init: str | None = None  # a checkpoint to start from (fine-tuning), else fresh Xavier init
     anchor: float = 0.0  # weight of the opt-in brightness anchor; 0 is the paper's objective
-    head: str = "gamma"  # "gamma" (the paper's) or "gain-gamma" (colonlight.correction)
+    head: str = "gamma"  # "gamma" (the paper's), "gain-gamma" or "curve" (colonlight.correction)
     objective: str = "paper"  # "paper" (unsupervised) | "restore" (to clean frames) | "hybrid" (both)
     consistency: float = 0.5  # weight of the paper's loss inside "hybrid"
     temporal: float = 0.0  # weight of the error's frame-to-frame change inside "restore" and "hybrid"
@@ -190,31 +190,45 @@ class SequenceSet:
 
 
 def apply_head(frames: torch.Tensor, out: torch.Tensor, head: str) -> torch.Tensor:
-    """Frames corrected by the head's outputs (``(B, T)`` for ``gamma``, ``(B, T, 2)`` for ``gain-gamma``)."""
+    """Frames corrected by the head's outputs (``(B, T)`` for ``gamma``, ``(B, T, K)`` for the others)."""
     if head == "gamma":
         return correct(frames, out)
+    if head == "curve":
+        return apply_curve(frames, curve_slopes_from_raw(out))
     gain, gamma = gain_gamma_from_raw(out)
     return apply_gain_gamma(frames, gain, gamma)
 
 
-def restore_loss(frames: torch.Tensor, clean: torch.Tensor, out: torch.Tensor, head: str) -> torch.Tensor:
+def unclipped(frames: torch.Tensor) -> torch.Tensor:
+    """1.0 where the recorder did not clip the sample (a clipped sample says nothing of its clean value)."""
+    return (frames < SATURATED).float()
+
+
+def restore_loss(
+    frames: torch.Tensor, clean: torch.Tensor, out: torch.Tensor, head: str, corrected: torch.Tensor | None = None
+) -> torch.Tensor:
     """Mean absolute difference between the corrected frames and the clean ones, over the samples the recorder
-    did not clip (a clipped input sample carries no information about its clean value). Every frame is a
-    target: a model trained this way corrects from the first frame on (no seed frames)."""
-    corrected = apply_head(frames, out, head)
-    keep = (frames < SATURATED).float()
+    did not clip. Every frame is a target: a model trained this way corrects from the first frame on (no seed
+    frames). ``corrected``: ``apply_head(frames, out, head)`` when the caller already has it."""
+    if corrected is None:
+        corrected = apply_head(frames, out, head)
+    keep = unclipped(frames)
     return ((corrected - clean).abs() * keep).sum() / keep.sum().clamp_min(1.0)
 
 
-def temporal_restore_loss(frames: torch.Tensor, clean: torch.Tensor, out: torch.Tensor, head: str) -> torch.Tensor:
+def temporal_restore_loss(
+    frames: torch.Tensor, clean: torch.Tensor, out: torch.Tensor, head: str, corrected: torch.Tensor | None = None
+) -> torch.Tensor:
     """Mean over consecutive frames of |change of the mean brightness error| (corrected minus clean, over the
     samples unclipped in both frames). A per-frame L1 leaves the model free to guess each frame's level
     independently, and independent guesses flicker; this term asks that whatever error remains stays the same
     from frame to frame, so the output flickers as the clean frames do and no more."""
     if frames.shape[1] < 2:
         return frames.new_zeros(())
-    error = apply_head(frames, out, head) - clean
-    keep = (frames < SATURATED).float()
+    if corrected is None:
+        corrected = apply_head(frames, out, head)
+    error = corrected - clean
+    keep = unclipped(frames)
     both = keep[:, 1:] * keep[:, :-1]
     dims = (2, 3, 4)
     denom = both.sum(dim=dims).clamp_min(1.0)
@@ -275,9 +289,10 @@ def batch_loss(net: GammaNet, data: SequenceSet, ids: Sequence[int], cfg: TrainC
     if cfg.objective == "paper":
         return paper_loss_any_head(x, out, cfg.head, cfg.ssim_window, anchor)
     clean = data.clean_batch(ids)
-    loss = restore_loss(x, clean, out, cfg.head)
+    corrected = apply_head(x, out, cfg.head)  # once for both terms
+    loss = restore_loss(x, clean, out, cfg.head, corrected)
     if cfg.temporal:
-        loss = loss + cfg.temporal * temporal_restore_loss(x, clean, out, cfg.head)
+        loss = loss + cfg.temporal * temporal_restore_loss(x, clean, out, cfg.head, corrected)
     if cfg.objective == "hybrid":
         loss = loss + cfg.consistency * paper_loss_any_head(x, out, cfg.head, cfg.ssim_window, anchor)
     return loss
@@ -346,6 +361,8 @@ ARCHITECTURES = {
     "gamma": "GammaNet (Zhang et al. IPMI 2021): conv-BN-ReLU, ConvLSTM(32), conv-ReLU, GAP, linear-ReLU",
     "gain-gamma": "GammaNet backbone (Zhang et al. IPMI 2021): conv-BN-ReLU, ConvLSTM(32), conv-ReLU, GAP, "
     "linear(32->2): gain and gamma (colonlight.correction)",
+    "curve": "GammaNet backbone (Zhang et al. IPMI 2021): conv-BN-ReLU, ConvLSTM(32), conv-ReLU, GAP, "
+    "linear(32->8): slopes of a monotone tone curve (colonlight.correction)",
 }
 
 

@@ -41,7 +41,26 @@ log = logging.getLogger(__name__)
 
 #: Suffixes that usually name videos. Advisory only (e.g. to report a misnamed file): detection is by content.
 VIDEO_SUFFIXES = frozenset(
-    [".mp4", ".m4v", ".mov", ".avi", ".mkv", ".mpg", ".mpeg", ".ts", ".mts", ".m2ts", ".webm", ".wmv", ".flv", ".3gp", ".ogv", ".vob", ".mxf", ".h264"]
+    [
+        ".mp4",
+        ".m4v",
+        ".mov",
+        ".avi",
+        ".mkv",
+        ".mpg",
+        ".mpeg",
+        ".ts",
+        ".mts",
+        ".m2ts",
+        ".webm",
+        ".wmv",
+        ".flv",
+        ".3gp",
+        ".ogv",
+        ".vob",
+        ".mxf",
+        ".h264",
+    ]
 )
 
 # Demuxers that open still images, animations or text as a "video" stream: such files are not clips.

@@ -17,8 +17,8 @@ import numpy as np
 import torch
 
 from ..checkpoint import LoadedWeights, load_weights
-from ..correction import gain_gamma_values
-from ..curves import apply_gamma, apply_lut, gain_gamma_lut
+from ..correction import CURVE_KNOTS, curve_values, gain_gamma_values
+from ..curves import apply_gamma, apply_lut, curve_lut, gain_gamma_lut
 from ..device import resolve_device
 from ..errors import OptionError
 from ..model import State
@@ -59,6 +59,24 @@ def clamp_gain_gamma(z0: float, z1: float) -> tuple[float, float, bool]:
     kept_gamma = min(max(gamma, GAMMA_MIN), GAMMA_MAX)
     kept_gain = min(max(gain, GAIN_MIN), GAIN_MAX)
     return kept_gain, kept_gamma, (kept_gamma != gamma or kept_gain != gain)
+
+
+#: The curve head's summary gamma is the power law through its value here (the middle knot).
+CURVE_SUMMARY_AT = CURVE_KNOTS[len(CURVE_KNOTS) // 2]
+
+
+def curve_correction(z: list[float]) -> tuple[np.ndarray | None, list[float], float, bool]:
+    """``(lut, values at the knots, summary gamma, clamped)`` of the curve head's raw outputs; non-finite outputs
+    leave the frame unchanged (``lut`` None), flagged. The summary gamma (``log f(m) / log m`` at
+    ``CURVE_SUMMARY_AT``, kept in the gamma range) is for records and plots; the curve is what is applied."""
+    try:
+        values, clamped = curve_values(z)
+    except ValueError:
+        return None, [], 1.0, True
+    at = float(np.interp(CURVE_SUMMARY_AT, CURVE_KNOTS, values))
+    gamma = math.log(min(max(at, 1e-9), 1.0)) / math.log(CURVE_SUMMARY_AT)
+    gamma = min(max(gamma, GAMMA_MIN), GAMMA_MAX)
+    return curve_lut(CURVE_KNOTS, values), [float(v) for v in values], gamma, clamped
 
 
 def network_input(frame: np.ndarray, size: int | None) -> np.ndarray:
@@ -104,11 +122,14 @@ class RecurrentGammaStream(MethodStream):
         check_frame(frame)
         raw = self.predict(frame)
         index, self._index = self._index, self._index + 1
-        gain_gamma = self._method.weights.head == "gain-gamma"
-        info: dict[str, Any] = {"z": raw} if gain_gamma else {"a": raw[0]}
+        head = self._method.weights.head
+        info: dict[str, Any] = {"z": raw} if head != "gamma" else {"a": raw[0]}
         if index < self._method.seeds:
             return [FrameResult(frame=frame, gamma=1.0, info={**info, "seed": True})]
-        if gain_gamma:
+        if head == "curve":
+            lut, info["curve"], gamma, clamped = curve_correction(raw)
+            corrected = frame if lut is None else apply_lut(frame, lut)
+        elif head == "gain-gamma":
             gain, gamma, clamped = clamp_gain_gamma(*raw)
             info["gain"] = gain
             corrected = apply_lut(frame, gain_gamma_lut(gain, gamma))
@@ -169,7 +190,10 @@ class RecurrentGammaMethod(Method):
         }
         if self.weights.head != "gamma":  # older outputs' records stay as they were
             params["head"] = self.weights.head
+        if self.weights.head == "gain-gamma":
             params["gain_range"] = [GAIN_MIN, GAIN_MAX]
+        if self.weights.head == "curve":
+            params["curve_knots"] = list(CURVE_KNOTS)
         return params
 
     def model_info(self) -> dict[str, Any]:
