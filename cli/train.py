@@ -50,9 +50,17 @@ def _synthetic_clips(
 
 
 def _clips(paths: list[Path]) -> list[Path]:
+    """The clips under ``paths``; a synthetic clip folder trains on its lossless ``frames/`` (frame for frame
+    beside ``clean/``, which the restoring objectives need), not on its H.264 ``clip.mp4``."""
     from colonlight import discover_clips
+    from colonlight.discovery import synthetic_folder_of
 
-    return [j.source for j in discover_clips(paths, Path("."))]
+    clips = []
+    for job in discover_clips(paths, Path(".")):
+        folder = synthetic_folder_of(job.source)
+        frames = folder / "frames" if folder is not None else None
+        clips.append(frames if frames is not None and frames.is_dir() else job.source)
+    return clips
 
 
 def train_cmd(

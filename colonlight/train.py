@@ -139,7 +139,13 @@ def load_sequences(clips: Sequence[Path], cfg: TrainConfig) -> SequenceSet:
             folder = clean_folder(p)
             if folder is None:
                 raise InputError(f"{p}: objective {cfg.objective!r} needs clean frames beside the clip (clean/)")
-            clean.append(load_clip_array(folder, cfg.size, cfg.fps))
+            pair = load_clip_array(folder, cfg.size, cfg.fps)
+            if pair.shape != arrays[len(clean)].shape:
+                raise InputError(
+                    f"{p}: its clean frames ({folder}) do not match it frame for frame "
+                    f"({len(pair)} clean, {len(arrays[len(clean)])} recorded at --fps {cfg.fps})"
+                )
+            clean.append(pair)
     return SequenceSet(arrays, cfg.seq_len, cfg.stride, clean)
 
 

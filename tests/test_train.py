@@ -103,3 +103,31 @@ def test_sequence_set_batches(tmp_path: Path) -> None:
     batch = ds.batch([1])
     assert batch.shape == (1, 10, 3, 8, 8)
     assert float(batch[0, 0, 0, 0, 0]) == pytest.approx(2 / 255)
+
+
+def test_train_on_synthetic_folders_reads_their_lossless_frames_beside_clean(tmp_path: Path) -> None:
+    """``colonlight synth`` then ``colonlight train`` on the same folder: each clip folder is one clip, read from
+    its frames/ (frame for frame beside clean/), not from its H.264 clip.mp4 (at 30 fps, which the 18 fps
+    extraction would thin out, so clean/ would not match it)."""
+    from typer.testing import CliRunner
+
+    from colonlight_cli.main import app
+
+    runner = CliRunner()
+    clips = tmp_path / "clips"
+    made = runner.invoke(
+        app, ["synth", str(clips), "-n", "2", "--frames", "12", "--width", "48", "--height", "48", "--fps", "30"]
+    )
+    assert made.exit_code == 0, made.output
+    assert all((c / "clip.mp4").is_file() for c in clips.iterdir())
+    run = tmp_path / "run"
+    res = runner.invoke(
+        app,
+        [
+            "train", str(clips), "-o", str(run), "--head", "gain-gamma", "--objective", "restore", "--epochs", "1",
+            "--size", "16", "--seq-len", "4", "--stride", "4", "--batch", "2",
+        ],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    card = json.loads((run / "colonlight-rnn.json").read_text())
+    assert card["head"] == "gain-gamma" and card["training"]["objective"].startswith("mean |corrected - clean|")
