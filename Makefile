@@ -10,7 +10,7 @@ VENV       ?= .venv
 TORCH_SPEC ?= torch==2.13.0
 BIN        := $(VENV)/bin
 
-.PHONY: demo test install install-test browser benchmark clean
+.PHONY: demo test install install-test browser benchmark figures clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -42,6 +42,16 @@ test: install-test
 
 benchmark: install-test
 	$(BIN)/python -m benchmarks
+
+# The README's pictures, from the shipped default model: the before/after strip and gamma plot, the evaluation
+# plots (from a fresh `colonlight evaluate` report on held-out synthetic clips) and the web page's screenshot.
+FIGURES_EVAL ?= build/figures-eval
+figures: install-test
+	$(BIN)/python scripts/make_figures.py
+	$(BIN)/colonlight evaluate --synthetic 4 --family heldout --frames 48 --size 160 --no-colmap \
+		--methods none,he,deflicker,rnn -o $(FIGURES_EVAL)
+	$(BIN)/python scripts/report_figures.py $(FIGURES_EVAL)/report.html docs
+	COLONLIGHT_UPDATE_SCREENSHOT=1 $(BIN)/python -m pytest -q tests/test_service_browser.py
 
 clean:
 	rm -rf $(VENV) colonlight-demo build *.egg-info
