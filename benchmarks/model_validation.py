@@ -11,10 +11,14 @@ Run: ``python -m benchmarks model_validation [--clips 8] [--weights W ...]`` (``
 from __future__ import annotations
 
 import argparse
+import hashlib
+import pickle
 import sys
+from pathlib import Path
 
 import numpy as np
 
+from colonlight.atomic import write_bytes_atomic
 from colonlight.evaluation.tracker import TrackerSettings, track_clip
 from colonlight.methods import create_method
 from colonlight.metrics import clip_lighting, content_masks
@@ -32,14 +36,35 @@ def clip_overrides(i: int) -> dict[str, object]:
     return {"undisturbed_seeds": True, "close_occluder": "forbid" if i % 3 else "random"}
 
 
+def _generator_digest() -> str:
+    """A hash of the generator's source: a rendered clip is reused only while the code that drew it is unchanged."""
+    import colonlight.synth
+
+    h = hashlib.sha256()
+    for path in sorted(Path(colonlight.synth.__file__).parent.glob("*.py")):
+        h.update(path.name.encode() + b"\0" + path.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def validation_clips(n: int) -> list[tuple[dict[str, object], SynthConfig, list]]:  # type: ignore[type-arg]
+    """The clips, rendered once and then read from the cache (rendering dominates a run on a busy machine)."""
+    from colonlight.methods.rnn_onnx import cache_dir
+
+    folder = cache_dir().parent / "model-validation" / _generator_digest()
     out = []
     for i in range(n):
         seed, over = SEED0 + i, clip_overrides(i)
         cfg = SynthConfig.sample(
             np.random.default_rng([seed, 1]), split="heldout", width=WIDTH, height=HEIGHT, n_frames=FRAMES, **over
         )
-        out.append((over, cfg, list(generate_clip(cfg, seed))))
+        cached = folder / f"{seed}-{WIDTH}x{HEIGHT}x{FRAMES}.pickle"
+        if cached.is_file():
+            frames = pickle.loads(cached.read_bytes())  # our own cache, written below
+        else:
+            frames = list(generate_clip(cfg, seed))
+            folder.mkdir(parents=True, exist_ok=True)
+            write_bytes_atomic(cached, pickle.dumps(frames))
+        out.append((over, cfg, frames))
     return out
 
 
@@ -92,9 +117,12 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument(
         "--weights", action="append", default=[], help="checkpoints to score (default: the shipped one)"
     )
+    parser.add_argument(
+        "--no-references", action="store_true", help="skip the none and clean rows (they do not change between runs)"
+    )
     args = parser.parse_args(argv or [])
     clips = validation_clips(args.clips)
-    rows = [score("none", None, clips), score("clean", None, clips)]
+    rows = [] if args.no_references else [score("none", None, clips), score("clean", None, clips)]
     for w in args.weights or [None]:
         rows.append(score(w or "rnn (shipped)", w or None, clips))
     return "\n".join(
