@@ -14,7 +14,9 @@ import argparse
 import hashlib
 import pickle
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -46,25 +48,37 @@ def _generator_digest() -> str:
     return h.hexdigest()[:16]
 
 
-def validation_clips(n: int) -> list[tuple[dict[str, object], SynthConfig, list]]:  # type: ignore[type-arg]
-    """The clips, rendered once and then read from the cache (rendering dominates a run on a busy machine)."""
+def clip_cache(name: str, render: Callable[[], list[Any]]) -> list[Any]:
+    """``render()``'s frames, kept in the cache under ``name`` for the generator's current source: rendering
+    takes most of a benchmark's time on a busy machine, and the same seeds are scored again and again."""
     from colonlight.methods.rnn_onnx import cache_dir
 
-    folder = cache_dir().parent / "model-validation" / _generator_digest()
+    cached = cache_dir().parent / "benchmark-clips" / _generator_digest() / f"{name}.pickle"
+    if cached.is_file():
+        frames: list[Any] = pickle.loads(cached.read_bytes())  # our own cache, written below
+        return frames
+    frames = render()
+    cached.parent.mkdir(parents=True, exist_ok=True)
+    write_bytes_atomic(cached, pickle.dumps(frames))
+    return frames
+
+
+def validation_clips(n: int) -> list[tuple[dict[str, object], SynthConfig, list]]:  # type: ignore[type-arg]
     out = []
     for i in range(n):
         seed, over = SEED0 + i, clip_overrides(i)
         cfg = SynthConfig.sample(
             np.random.default_rng([seed, 1]), split="heldout", width=WIDTH, height=HEIGHT, n_frames=FRAMES, **over
         )
-        cached = folder / f"{seed}-{WIDTH}x{HEIGHT}x{FRAMES}.pickle"
-        if cached.is_file():
-            frames = pickle.loads(cached.read_bytes())  # our own cache, written below
-        else:
-            frames = list(generate_clip(cfg, seed))
-            folder.mkdir(parents=True, exist_ok=True)
-            write_bytes_atomic(cached, pickle.dumps(frames))
-        out.append((over, cfg, frames))
+        out.append(
+            (
+                over,
+                cfg,
+                clip_cache(
+                    f"{seed}-{WIDTH}x{HEIGHT}x{FRAMES}", lambda cfg=cfg, seed=seed: list(generate_clip(cfg, seed))
+                ),
+            )
+        )
     return out
 
 

@@ -43,7 +43,11 @@ def clip_settings(i: int) -> dict[str, object]:
 
 
 def heldout_clips(seed0: int = SEED0) -> list[tuple[dict[str, object], list[np.ndarray], list[np.ndarray]]]:
+    """The gate's clips, rendered once and then read from the cache (``model_validation``'s, keyed by the
+    generator's source hash)."""
     from colonlight.synth import SynthConfig, generate_clip
+
+    from .model_validation import clip_cache
 
     clips = []
     for i in range(N_CLIPS):
@@ -52,7 +56,9 @@ def heldout_clips(seed0: int = SEED0) -> list[tuple[dict[str, object], list[np.n
         cfg = SynthConfig.sample(
             np.random.default_rng(seed), split="heldout", width=SIZE, height=SIZE, n_frames=N_FRAMES, **over
         )
-        frames = list(generate_clip(cfg, seed=seed))
+        frames = clip_cache(
+            f"gate-{seed}-{SIZE}x{SIZE}x{N_FRAMES}", lambda cfg=cfg, seed=seed: list(generate_clip(cfg, seed=seed))
+        )
         clips.append(({"seed": seed, **over}, [f.image for f in frames], [f.clean for f in frames]))
     return clips
 
