@@ -11,23 +11,17 @@ Run: ``python -m benchmarks model_validation [--clips 8] [--weights W ...]`` (``
 from __future__ import annotations
 
 import argparse
-import hashlib
-import pickle
 import sys
-from collections.abc import Callable
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from colonlight.atomic import write_bytes_atomic
 from colonlight.evaluation.tracker import TrackerSettings, track_clip
 from colonlight.methods import create_method
 from colonlight.metrics import clip_lighting, content_masks
 from colonlight.synth import SynthConfig, generate_clip
 from colonlight.synth.camera import Intrinsics
 
-from .common import markdown_table
+from .common import clip_cache, markdown_table
 
 SEED0, WIDTH, HEIGHT, FRAMES = 720_000, 160, 128, 60
 
@@ -36,31 +30,6 @@ def clip_overrides(i: int) -> dict[str, object]:
     if i % 4 == 0:
         return {"steady": True}
     return {"undisturbed_seeds": True, "close_occluder": "forbid" if i % 3 else "random"}
-
-
-def _generator_digest() -> str:
-    """A hash of the generator's source: a rendered clip is reused only while the code that drew it is unchanged."""
-    import colonlight.synth
-
-    h = hashlib.sha256()
-    for path in sorted(Path(colonlight.synth.__file__).parent.glob("*.py")):
-        h.update(path.name.encode() + b"\0" + path.read_bytes())
-    return h.hexdigest()[:16]
-
-
-def clip_cache(name: str, render: Callable[[], list[Any]]) -> list[Any]:
-    """``render()``'s frames, kept in the cache under ``name`` for the generator's current source: rendering
-    takes most of a benchmark's time on a busy machine, and the same seeds are scored again and again."""
-    from colonlight.methods.rnn_onnx import cache_dir
-
-    cached = cache_dir().parent / "benchmark-clips" / _generator_digest() / f"{name}.pickle"
-    if cached.is_file():
-        frames: list[Any] = pickle.loads(cached.read_bytes())  # our own cache, written below
-        return frames
-    frames = render()
-    cached.parent.mkdir(parents=True, exist_ok=True)
-    write_bytes_atomic(cached, pickle.dumps(frames))
-    return frames
 
 
 def validation_clips(n: int) -> list[tuple[dict[str, object], SynthConfig, list]]:  # type: ignore[type-arg]

@@ -27,7 +27,7 @@ from colonlight.methods import create_method
 from colonlight.metrics import ClipLighting, clip_lighting
 from colonlight.pipeline import iter_enhanced
 
-from .common import AUTHORS_CKPT, markdown_table
+from .common import AUTHORS_CKPT, clip_cache, markdown_table
 
 N_CLIPS, N_FRAMES, SIZE, SEED0 = 24, 72, 256, 700_000
 ORACLE = "clean"  # not a method: the generator's clean frames scored as if a method had produced them
@@ -46,8 +46,6 @@ def heldout_clips(seed0: int = SEED0) -> list[tuple[dict[str, object], list[np.n
     """The gate's clips, rendered once and then read from the cache (``model_validation``'s, keyed by the
     generator's source hash)."""
     from colonlight.synth import SynthConfig, generate_clip
-
-    from .model_validation import clip_cache
 
     clips = []
     for i in range(N_CLIPS):
