@@ -109,7 +109,9 @@ def train_cmd(
     objective: str = typer.Option(
         "paper",
         "--objective",
-        help="paper (unsupervised, the paper's loss) | restore (to the clean frames of synthetic clips) | hybrid (both).",
+        help="paper (unsupervised, the paper's loss) | restore (to the clean frames of synthetic clips) | "
+        "relative (to the clean frames as each window's first frame shows them: steady video is left alone) | "
+        "hybrid (restore and the paper's loss).",
     ),
     consistency: float = typer.Option(
         0.5, "--consistency", min=0.0, help="Weight of the paper's loss in --objective hybrid."
@@ -118,7 +120,7 @@ def train_cmd(
         0.0,
         "--temporal",
         min=0.0,
-        help="Weight of the restoration error's frame-to-frame change (--objective restore|hybrid): the output flickers no more than the clean frames.",
+        help="Weight of the restoration error's frame-to-frame change (--objective restore|relative|hybrid): the output flickers no more than the clean frames.",
     ),
     method: str = typer.Option("rnn", "--method", help="rnn (the paper's model) | zerodce | zerodce++ (baselines)."),
     size: int = typer.Option(48, "--size", min=16, help="Training input size (match the inference default, 48)."),
