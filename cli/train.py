@@ -39,7 +39,7 @@ def _synthetic_clips(
         width=render,
         height=render,
         n_frames=frames,
-        fps=18.0,
+        fps=DEFAULT_FPS,
         workers=2,
         video=False,
         steady_fraction=steady,
