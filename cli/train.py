@@ -202,6 +202,7 @@ def train_cmd(
 
         init = str(DEFAULT_WEIGHTS)
     # Imported here, not at the top: other commands (enhance above all) do without torch's training side and kornia.
+    from colonlight.errors import OptionError
     from colonlight.train import TrainConfig, train
 
     try:
@@ -221,7 +222,7 @@ def train_cmd(
             consistency=consistency,
             temporal=temporal,
         )
-    except ValueError as exc:
+    except OptionError as exc:
         raise typer.BadParameter(str(exc)) from None
     with Progress(
         TextColumn("{task.description}"),
