@@ -166,7 +166,7 @@ def evaluate(
         typer.Option(
             "--family",
             help="Synthetic settings: train (the generator's training ranges, unseen seeds; trackable motion) "
-            "or heldout (knobs pushed outside them, often faster than a tracker can follow at 18 fps).",
+            f"or heldout (knobs pushed outside them, often faster than a tracker can follow at {DEFAULT_FPS:g} fps).",
         ),
     ] = "train",
     size: Annotated[int, typer.Option("--size", min=32, help="Side of the synthetic frames in pixels.")] = 256,

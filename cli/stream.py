@@ -119,7 +119,8 @@ def stream(
         "jpg",
         "--format",
         "-f",
-        help="Frame image format: jpg (default: at 1080p a PNG costs ~20x the CPU of a JPEG, too much at 18 fps on 2 cores) | png.",
+        help="Frame image format: jpg (default: at 1080p a PNG costs ~20x the CPU of a JPEG, too much at "
+        f"{DEFAULT_FPS:g} fps on 2 cores) | png.",
     ),
     quality: int = typer.Option(95, "--quality", min=1, max=100, help="JPEG quality."),
     keep: int = typer.Option(0, "--keep", min=0, help="Keep only the newest N frames in OUTPUT/frames/ (0: all)."),
