@@ -39,7 +39,7 @@ def _synthetic_clips(
         width=render,
         height=render,
         n_frames=frames,
-        fps=18.0,
+        fps=DEFAULT_FPS,
         workers=2,
         video=False,
         steady_fraction=steady,
@@ -204,6 +204,7 @@ def train_cmd(
 
         init = str(DEFAULT_WEIGHTS)
     # Imported here, not at the top: other commands (enhance above all) do without torch's training side and kornia.
+    from colonlight.errors import OptionError
     from colonlight.train import TrainConfig, train
 
     try:
@@ -223,7 +224,7 @@ def train_cmd(
             consistency=consistency,
             temporal=temporal,
         )
-    except ValueError as exc:
+    except OptionError as exc:
         raise typer.BadParameter(str(exc)) from None
     with Progress(
         TextColumn("{task.description}"),

@@ -33,7 +33,7 @@ from safetensors.torch import load_file, save_file
 from .atomic import atomic_path, write_json_atomic
 from .checkpoint import load_weights, save_weights
 from .correction import apply_curve, apply_gain_gamma, curve_slopes_from_raw, gain_gamma_from_raw
-from .errors import InputError
+from .errors import InputError, OptionError
 from .limits import DEFAULT_FPS
 from .methods.rnn import DEFAULT_MODEL_SIZE
 from .model import HEAD_OUTPUTS, GammaNet, correct, parameter_count
@@ -68,9 +68,9 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
-            raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}")
+            raise OptionError(f"objective must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}")
         if self.head not in HEAD_OUTPUTS:
-            raise ValueError(f"head must be one of {', '.join(HEAD_OUTPUTS)}, got {self.head!r}")
+            raise OptionError(f"head must be one of {', '.join(HEAD_OUTPUTS)}, got {self.head!r}")
 
     @property
     def supervised(self) -> bool:

@@ -48,8 +48,8 @@ from .errors import ApiError, is_disk_full, storage_full
 from .header_probe import declared_frame_size
 from .memory import release_free_memory
 from .metrics import Metrics
+from .request_options import JobOptions, method_spec
 from .runners import DISK_FULL, NO_SPACE, ClipHooks, ClipRunner, ClusterRunner, LocalRunner, MethodCache, Stopped
-from .schemas import JobOptions
 from .settings import Settings
 from .store import JobRecord, JobStore
 from .uploads import CLOSE, Upload, safe_suffix
@@ -123,25 +123,7 @@ class JobManager:
 
     def method_spec(self, o: JobOptions) -> MethodSpec:
         """The engine's method for a request's options, with the server's weights and device."""
-        s = self.settings
-        name = o.method or s.method
-        opts: dict[str, Any] = {}
-        if name in ("rnn", "zerodce", "zerodce++"):
-            opts["device"] = s.device
-        if name == "rnn":
-            if s.weights is not None:
-                opts["weights"] = str(s.weights)
-            size = o.model_size or s.model_size
-            if size is not None:
-                opts["model_size"] = int(size) if size.isdigit() else size
-        elif o.model_size is not None:
-            raise ApiError(422, "validation_error", f"model_size applies only to method rnn, not {name!r}")
-        if name == "gamma":
-            if o.gamma is not None:
-                opts["gamma"] = o.gamma
-        elif o.gamma is not None:
-            raise ApiError(422, "validation_error", f"gamma applies only to method gamma, not {name!r}")
-        return MethodSpec.of(name, **opts)
+        return method_spec(self.settings, o)
 
     def resolved(self, o: JobOptions) -> JobOptions:
         """``o`` with the server's defaults filled in (what the job records and runs with)."""
