@@ -13,8 +13,7 @@ from colonlight.limits import DEFAULT_FPS
 from .display import BatchDisplay, console, error_line
 
 DEMO_SEED = 20210628  # the clip is rendered from "heldout" settings, never used to train the default model
-DEMO_FPS = 30.0  # the rate the clip is rendered at, as a recorder's; enhance takes DEFAULT_FPS of it
-DEFAULT_FPS = ClipOptions().fps or 0.0  # the rate enhance extracts frames at (the paper's 18)
+DEMO_FPS = 30.0  # the rate the clip is rendered at, as a recorder's; enhance takes DEFAULT_FPS (18) of it
 
 
 def demo(
@@ -64,7 +63,8 @@ def demo(
     result = jobs[0].out_dir
     gammas = [f["gamma"] for f in json.loads((result / "gammas.json").read_text())["frames"]]
     console.print(
-        f"\n[bold]colonlight demo done[/]: {len(gammas)} frames extracted at {DEFAULT_FPS:g} fps from a {DEMO_FPS:g} fps clip, "
+        f"\n[bold]colonlight demo done[/]: {len(gammas)} frames extracted at {DEFAULT_FPS:g} fps "
+        f"from a {DEMO_FPS:g} fps clip, "
         f"gamma {min(gammas):.2f}..{max(gammas):.2f}\n"
         f"  input clip      {video_path}\n"
         f"  enhanced frames {result / 'frames'}/\n"

@@ -91,7 +91,8 @@ def train_cmd(
         "--synthetic-occluders",
         min=0.0,
         max=1.0,
-        help="Fraction of synthetic clips forced to have a close-occluder moment (otherwise each clip has one by chance, 35%).",
+        help="Fraction of synthetic clips forced to have a close-occluder moment (otherwise each clip has one by "
+        "chance, 35%).",
     ),
     synthetic_clean_seeds: float = typer.Option(
         0.0,
@@ -109,7 +110,8 @@ def train_cmd(
     objective: str = typer.Option(
         "paper",
         "--objective",
-        help="paper (unsupervised, the paper's loss) | restore (to the clean frames of synthetic clips) | hybrid (both).",
+        help="paper (unsupervised, the paper's loss) | restore (to the clean frames of synthetic clips) | hybrid "
+        "(both).",
     ),
     consistency: float = typer.Option(
         0.5, "--consistency", min=0.0, help="Weight of the paper's loss in --objective hybrid."
@@ -118,7 +120,8 @@ def train_cmd(
         0.0,
         "--temporal",
         min=0.0,
-        help="Weight of the restoration error's frame-to-frame change (--objective restore|hybrid): the output flickers no more than the clean frames.",
+        help="Weight of the restoration error's frame-to-frame change (--objective restore|hybrid): the output "
+        "flickers no more than the clean frames.",
     ),
     method: str = typer.Option("rnn", "--method", help="rnn (the paper's model) | zerodce | zerodce++ (baselines)."),
     size: int = typer.Option(48, "--size", min=16, help="Training input size (match the inference default, 48)."),
@@ -186,7 +189,8 @@ def train_cmd(
                 synthetic_clean_seeds,
             )
             extra["validation_data"] = (
-                f"synthetic: {synthetic_val} clips, seeds {synthetic_seed + synthetic}..{synthetic_seed + synthetic + synthetic_val - 1}"
+                f"synthetic: {synthetic_val} clips, "
+                f"seeds {synthetic_seed + synthetic}..{synthetic_seed + synthetic + synthetic_val - 1}"
             )
     if not train_clips:
         raise typer.BadParameter("give clips to train on, or --synthetic N")
