@@ -31,7 +31,8 @@ class JobOptions(BaseModel):
     method: str | None = Field(None, description="Enhancement method (default: the server's, rnn).")
     model_size: str | None = Field(
         None,
-        description="rnn only: network input side in pixels (8..1024) or 'full'; default: the size the weights were trained at (48 for the shipped model).",
+        description="rnn only: network input side in pixels (8..1024) or 'full'; default: the size the weights were "
+        "trained at (48 for the shipped model).",
     )
     gamma: float | None = Field(None, gt=0, le=10, description="method=gamma only: the exponent (out = in ** gamma).")
     format: Literal["png", "jpg"] = Field("png", description="Format of the enhanced frames (the zip).")
@@ -39,7 +40,8 @@ class JobOptions(BaseModel):
     frames: bool = Field(True, description="Also write the enhanced frames (downloadable as a zip).")
     content: Literal["auto", "full"] = Field(
         "auto",
-        description="auto: the method sees only the field of view inside a black border, less fixed on-screen text; border and text pixels are written unchanged. full: the whole frame.",
+        description="auto: the method sees only the field of view inside a black border, less fixed on-screen text; "
+        "border and text pixels are written unchanged. full: the whole frame.",
     )
 
     @field_validator("*", mode="before")
