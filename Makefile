@@ -1,6 +1,6 @@
 # Two commands set everything up on a fresh machine:
 #   make demo   installs colonlight into .venv and runs the main job on an embedded synthetic clip
-#   make test   installs colonlight with its test tools into .venv and runs the test suite
+#   make test   installs colonlight with its test tools into .venv, runs the lint and type gates, then the test suite
 # TORCH_SPEC picks the torch build; the default is whatever the package index gives (PyPI: the CUDA build on
 # Linux x86-64, several GB). The CPU build:
 #   make demo TORCH_SPEC="torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu"
@@ -10,7 +10,7 @@ VENV       ?= .venv
 TORCH_SPEC ?= torch==2.13.0
 BIN        := $(VENV)/bin
 
-.PHONY: demo test install install-test browser benchmark figures clean
+.PHONY: demo test lint install install-test browser benchmark figures clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -37,7 +37,14 @@ browser:
 demo: install
 	$(BIN)/colonlight demo
 
-test: install-test
+# The gates before the suite, each failing `make test` on any finding: ruff's lint and format over the whole tree,
+# mypy strict on the engine (colonlight/; both configured in pyproject.toml).
+lint: install-test
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
+
+test: lint
 	$(BIN)/python -m pytest
 
 benchmark: install-test

@@ -1,4 +1,5 @@
-"""Run the benchmarks: `python -m benchmarks [input_size] [enhance] [service] [stream] [ws_stream] [quality_gate] [objective_landscape] [onnx_step] [model_validation]` (default: all).
+"""Run the benchmarks (default: all): `python -m benchmarks [input_size] [enhance] [service] [stream] [ws_stream]
+[quality_gate] [objective_landscape] [onnx_step] [model_validation]`.
 
 Options after a name go to that benchmark: `python -m benchmarks quality_gate --json gate.json`.
 """

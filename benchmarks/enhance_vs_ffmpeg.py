@@ -201,7 +201,7 @@ def model_cost() -> list[list[object]]:
         torch.set_num_threads(threads)
         stream = RecurrentGammaMethod(weights, model_size=size if size else "full", device="cpu").stream()
         step = median_time(lambda s=stream: s.predict_a(frame), repeats=reps, warmup=2)
-        resize = median_time(lambda: network_input(frame, size), repeats=reps, warmup=2) if size else 0.0
+        resize = median_time(lambda n=size: network_input(frame, n), repeats=reps, warmup=2) if size else 0.0
         rows.append([label, threads, f"{1000 * step:.1f}", f"{1000 * resize:.1f}" if size else "-"])
     return rows
 

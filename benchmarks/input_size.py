@@ -56,7 +56,9 @@ def main() -> str:
     for label, clips in sets.items():
         ref = [_clip_gammas(weights, c, 256) for c in clips]
         for size in SIZES:
-            diffs = np.concatenate([np.abs(_clip_gammas(weights, c, size) - r) for c, r in zip(clips, ref)])
+            diffs = np.concatenate(
+                [np.abs(_clip_gammas(weights, c, size) - r) for c, r in zip(clips, ref, strict=True)]
+            )
             rows.append([label, size, f"{diffs.mean():.4f}", f"{np.median(diffs):.4f}", f"{diffs.max():.4f}"])
     net = weights.net
     frame = _fixture_frames()[0]
@@ -65,7 +67,7 @@ def main() -> str:
         x = to_tensor(network_input(frame, size), torch.device("cpu"))
         state = None
 
-        def step() -> None:
+        def step(x: torch.Tensor = x) -> None:  # this size's input (called only in this iteration)
             nonlocal state
             with torch.inference_mode():
                 _, state = net.step(x, state)

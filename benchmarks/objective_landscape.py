@@ -104,10 +104,10 @@ def main(argv: list[str] | None = None) -> str:
     for family, overrides in ((f"as sampled ({lo:g}-{hi:g} mm/s)", {}), ("slow camera (2 mm/s)", SLOW)):
         clips = render(overrides)
         for size in SIZES:
-            l = losses(sequences([c[0] for c in clips], size), sequences([c[1] for c in clips], size))
-            best = min(l, key=l.__getitem__)
+            loss = losses(sequences([c[0] for c in clips], size), sequences([c[1] for c in clips], size))
+            best = min(loss, key=loss.__getitem__)
             rows.append(
-                [family, str(size)] + [f"{l[k]:.4f}" for k in ("input", "clean", "flatten", "washout")] + [best]
+                [family, str(size)] + [f"{loss[k]:.4f}" for k in ("input", "clean", "flatten", "washout")] + [best]
             )
     return "\n".join(
         [

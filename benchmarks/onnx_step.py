@@ -60,7 +60,9 @@ def _bare_steps(size: int) -> dict[str, Callable[[], object]]:
         float(a.item())
 
     def onnx_step() -> None:
-        a, *onnx_state[0] = session.run(None, {"frame": frame, **dict(zip(sig.state_names, onnx_state[0]))})
+        a, *onnx_state[0] = session.run(
+            None, {"frame": frame, **dict(zip(sig.state_names, onnx_state[0], strict=True))}
+        )
         float(a.item())
 
     return {"torch": torch_step, "onnxruntime": onnx_step}
@@ -90,7 +92,7 @@ def measure(rounds: int, steps: int, size: int = DEFAULT_MODEL_SIZE) -> list[lis
         row: list[object] = [label, f"{size}x{size}"]
         for kind in ("wall", "cpu"):
             ms = got[kind]
-            ratios = [o / t for o, t in zip(ms["onnxruntime"], ms["torch"])]
+            ratios = [o / t for o, t in zip(ms["onnxruntime"], ms["torch"], strict=True)]
             row += [
                 f"{statistics.median(ms['torch']):.2f}",
                 f"{statistics.median(ms['onnxruntime']):.2f}",

@@ -75,12 +75,12 @@ FLICKER_VS_CLEAN, PSNR_GAIN_DB, MAX_DARKENING = 1.1, 3.0, 0.005
 
 def gate(results: list[ClipLighting], clips: list, truth: list[ClipLighting]) -> dict[str, object]:  # type: ignore[type-arg]
     """The gate's numbers for one method; ``truth``: the clean frames scored the same way, clip by clip."""
-    disturbed = [r for r, c in zip(results, clips) if not c[0].get("steady")]
-    clean_flicker = float(np.mean([t.flicker_out for t, c in zip(truth, clips) if not c[0].get("steady")]))
+    disturbed = [r for r, c in zip(results, clips, strict=True) if not c[0].get("steady")]
+    clean_flicker = float(np.mean([t.flicker_out for t, c in zip(truth, clips, strict=True) if not c[0].get("steady")]))
     flicker_ratio = float(np.mean([r.flicker_out for r in disturbed])) / clean_flicker
-    restore = [r for r, c in zip(results, clips) if c[0].get("undisturbed_seeds")]
-    steady = [r for r, c in zip(results, clips) if c[0].get("steady")]
-    occl = [r for r, c in zip(results, clips) if c[0].get("close_occluder") == "force"]
+    restore = [r for r, c in zip(results, clips, strict=True) if c[0].get("undisturbed_seeds")]
+    steady = [r for r, c in zip(results, clips, strict=True) if c[0].get("steady")]
+    occl = [r for r, c in zip(results, clips, strict=True) if c[0].get("close_occluder") == "force"]
     reduction = float(np.mean([r.flicker_reduction for r in disturbed]))
     psnr_in = float(np.mean([r.psnr_in for r in restore]))
     psnr_out = float(np.mean([r.psnr_out for r in restore]))
@@ -142,7 +142,8 @@ def main(argv: list[str] | None = None) -> str:
         args.json.write_text(json.dumps(record, indent=1))
     return "\n".join(
         [
-            f"## Quality gate: {N_CLIPS} held-out synthetic clips x {N_FRAMES} frames ({SIZE}x{SIZE}), seeds {args.seed0}..{args.seed0 + N_CLIPS - 1}",
+            f"## Quality gate: {N_CLIPS} held-out synthetic clips x {N_FRAMES} frames ({SIZE}x{SIZE}), "
+            f"seeds {args.seed0}..{args.seed0 + N_CLIPS - 1}",
             "",
             markdown_table(
                 [
@@ -157,7 +158,8 @@ def main(argv: list[str] | None = None) -> str:
                 rows,
             ),
             "",
-            f"Gate: flicker <= {FLICKER_VS_CLEAN}x the clean frames' own, PSNR up by >= {PSNR_GAIN_DB} dB, darkening <= "
+            f"Gate: flicker <= {FLICKER_VS_CLEAN}x the clean frames' own, PSNR up by >= {PSNR_GAIN_DB} dB, "
+            "darkening <= "
             f"{MAX_DARKENING} (the `none` row is the control and fails by design; the clean-frames row is a perfect",
             "restoration: its flicker cut is the most that undoing the disturbances can give, because the scene's own",
             "lighting changes with the camera's motion).",

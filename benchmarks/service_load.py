@@ -168,7 +168,8 @@ def main(argv: list[str] | None = None) -> str:
         "## Service load (`python -m benchmarks.service_load`)",
         "",
         (
-            f"Real `colonlight serve` on loopback, {args.workers} workers, method {label}, {size[0]}x{size[1]} clips at "
+            f"Real `colonlight serve` on loopback, {args.workers} workers, method {label}, {size[0]}x{size[1]} "
+            "clips at "
             f"25 fps, extracted at 18 fps, frames + video written; {args.clips_per_client} clip(s) per client, "
             "latency = upload start to job seen finished (polling every 50 ms); a fresh server per row."
         ),

@@ -113,7 +113,8 @@ def enhance(
     quiet: bool = options.Quiet,
     debug: bool = options.Debug,
 ) -> None:
-    """Enhance every clip under INPUTS into OUTPUT/<clip>/ (frames/, gammas.json, enhanced.mp4, times.txt, rgb.txt) plus OUTPUT/manifest.json."""
+    # One line: `colonlight --help` shows the docstring's line breaks as they are.
+    """Enhance every clip under INPUTS into OUTPUT/<clip>/ (frames/, gammas.json, enhanced.mp4, times.txt, rgb.txt) plus OUTPUT/manifest.json."""  # noqa: E501
     if not is_available(method):  # imports this method only (all of them only to list them in the error)
         raise typer.BadParameter(
             f"unknown method {method!r}; available: {', '.join(available_methods())}", param_hint="--method"

@@ -253,8 +253,10 @@ def evaluate(
     if synthetic:
         overlap = [r for r in (TRAINING_SEEDS, GATE_SEEDS) if seed0 < r.stop and r.start < seed0 + synthetic]
         if overlap:
-            console.print(f"[yellow]warning[/]: seeds {seed0}..{seed0 + synthetic - 1} overlap seeds used for "
-                          "training or the quality gate; the benchmark should use unseen seeds (e.g. 800000+)")  # fmt: skip
+            console.print(
+                f"[yellow]warning[/]: seeds {seed0}..{seed0 + synthetic - 1} overlap seeds used for "
+                "training or the quality gate; the benchmark should use unseen seeds (e.g. 800000+)"
+            )
         clip_dir = output / "clips"
         done = [0]
 
@@ -264,8 +266,10 @@ def evaluate(
                 console.print(f"[dim]rendered[/] {folder} ({done[0]}/{synthetic})", soft_wrap=True)
 
         if not quiet:
-            console.print(f"synthetic benchmark: {synthetic} clips ({family} settings) x {frames} frames ({size}x{size}) "
-                          f"in {clip_dir}")  # fmt: skip
+            console.print(
+                f"synthetic benchmark: {synthetic} clips ({family} settings) x {frames} frames ({size}x{size}) "
+                f"in {clip_dir}"
+            )
         refs += make_benchmark(
             clip_dir,
             synthetic,

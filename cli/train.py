@@ -120,7 +120,8 @@ def train_cmd(
         0.0,
         "--temporal",
         min=0.0,
-        help="Weight of the restoration error's frame-to-frame change (--objective restore|relative|hybrid): the output flickers no more than the clean frames.",
+        help="Weight of the restoration error's frame-to-frame change (--objective restore|relative|hybrid): the "
+        "output flickers no more than the clean frames.",
     ),
     method: str = typer.Option("rnn", "--method", help="rnn (the paper's model) | zerodce | zerodce++ (baselines)."),
     size: int = typer.Option(48, "--size", min=16, help="Training input size (match the inference default, 48)."),

@@ -99,7 +99,8 @@ def write_json_atomic(dest: Path, obj: Any) -> None:
 
 
 def remove_stale_temporaries(folder: Path, recursive: bool = True) -> int:
-    """Delete temporaries left in ``folder`` (and, if ``recursive``, below it) by an interrupted run; return how many."""
+    """Delete temporaries left in ``folder`` (and, if ``recursive``, below it) by an interrupted run; return how
+    many."""
     count = 0
     folder = Path(folder)
     if not folder.is_dir():

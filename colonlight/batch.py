@@ -15,6 +15,7 @@ What a batch guarantees (the README's reliability section says the same for user
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import os
 import queue
@@ -131,7 +132,8 @@ class ManifestError(ColonlightError):
 
 
 def default_workers(n_clips: int) -> int:
-    """One worker per two cores (each clip already keeps a decoder, the model and encoders busy), at most one per clip."""
+    """One worker per two cores (each clip already keeps a decoder, the model and encoders busy), at most one per
+    clip."""
     return max(1, min(n_clips, available_cores() // 2))
 
 
@@ -188,10 +190,9 @@ def _die_with_parent(parent_pid: int) -> None:
     if sys.platform.startswith("linux"):
         import ctypes
 
-        try:
+        # no prctl in this libc: the ppid check still catches a dead parent
+        with contextlib.suppress(OSError, AttributeError):
             ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
-        except (OSError, AttributeError):  # no prctl in this libc: the ppid check still catches a dead parent
-            pass
     if os.getppid() != parent_pid:
         os._exit(1)
 

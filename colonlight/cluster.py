@@ -43,7 +43,7 @@ import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
-from typing import Any
+from typing import Any, TypedDict
 
 from . import __version__
 from .errors import ColonlightError
@@ -53,7 +53,8 @@ from .pipeline import ClipOptions
 
 #: The scheduler's event topic for progress events (one topic, so the scheduler's capped log does not grow per run).
 PROGRESS_TOPIC = "colonlight-progress"
-#: Prefix of the token file the pre-flight check writes into the output folder (and removes) to see that workers share it.
+#: Prefix of the token file the pre-flight check writes into the output folder (and removes) to see that workers
+#: share it.
 MARKER_NAME = ".colonlight-cluster-check"
 #: Seconds to wait for a worker's outputs to become visible here (network filesystems' attribute caches).
 VISIBLE_TIMEOUT = 5.0
@@ -96,6 +97,15 @@ def _worker_address() -> str:
         return "this process"
 
 
+class ProgressEvent(TypedDict):
+    """One progress event as a worker logs it under :data:`PROGRESS_TOPIC`."""
+
+    run: str
+    event: str
+    clip: str
+    data: dict[str, Any]
+
+
 def _progress_sender(run: str) -> ProgressFn:
     """A ``progress`` callback that forwards events to the scheduler's event log (throttled, never raising)."""
     from distributed import get_worker
@@ -109,7 +119,8 @@ def _progress_sender(run: str) -> ProgressFn:
             return
         last[clip] = now
         with contextlib.suppress(Exception):  # progress is best effort
-            worker.log_event(PROGRESS_TOPIC, {"run": run, "event": event, "clip": clip, "data": dict(data)})
+            message: ProgressEvent = {"run": run, "event": event, "clip": clip, "data": dict(data)}
+            worker.log_event(PROGRESS_TOPIC, message)
 
     return progress
 
@@ -301,7 +312,8 @@ class ClusterRunner:
         for addr, res in sorted(results.items()):
             if isinstance(res, BaseException):
                 problems.append(
-                    f"worker {addr} cannot run colonlight ({_one_line(res)}); install colonlight {__version__} on every worker"
+                    f"worker {addr} cannot run colonlight ({_one_line(res)}); "
+                    f"install colonlight {__version__} on every worker"
                 )
             elif res.get("version") != __version__:
                 problems.append(f"worker {addr} runs colonlight {res.get('version')}, this machine {__version__}")
@@ -421,7 +433,7 @@ def run_on_cluster(
     with ClusterRunner(address) as runner:
         runner.check(jobs, spec)
         run = uuid.uuid4().hex if progress else None
-        events: queue.SimpleQueue[dict[str, Any]] = queue.SimpleQueue()
+        events: queue.SimpleQueue[ProgressEvent] = queue.SimpleQueue()
         if run:
             runner.client.subscribe_topic(
                 PROGRESS_TOPIC, lambda ev: events.put(ev[1]) if ev[1].get("run") == run else None

@@ -33,6 +33,7 @@ from typing import Any, Literal
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from .errors import FrameShapeError, OptionError
 from .methods.base import FrameResult, Method, MethodStream, check_frame
@@ -89,8 +90,8 @@ def parse_content_mode(value: str) -> ContentMode:
 class ContentArea:
     """Where the scene is: ``fov`` (field of view) and ``overlay`` (fixed text inside it), ``(H, W)`` bool."""
 
-    fov: np.ndarray
-    overlay: np.ndarray
+    fov: npt.NDArray[np.bool_]
+    overlay: npt.NDArray[np.bool_]
 
     @staticmethod
     def full(height: int, width: int) -> ContentArea:
@@ -186,7 +187,8 @@ def detect_fov(high: np.ndarray, low: np.ndarray) -> np.ndarray | None:
     # The hull runs through the outermost lit pixels; unlit pixels along its inside (a soft or compressed edge)
     # are border too.
     ring = inside.astype(bool) & (high <= DARK_LEVEL) & (high - low <= FLAT_RANGE)
-    return fov & ~ring
+    bounded: np.ndarray = fov & ~ring
+    return bounded
 
 
 def median_u8(values: np.ndarray) -> int:
@@ -230,7 +232,8 @@ def detect_overlay(high: np.ndarray, low: np.ndarray, fov: np.ndarray) -> np.nda
     keep[0] = False
     text = keep[labels] & candidate.astype(bool)
     # One pixel of margin: the strokes' edges change a little under video compression.
-    return cv2.dilate(text.astype(np.uint8), _SQUARE3).astype(bool) & fov
+    overlay: np.ndarray = cv2.dilate(text.astype(np.uint8), _SQUARE3).astype(bool) & fov
+    return overlay
 
 
 def detect_area(stats: BlockStats, previous: ContentArea | None = None) -> ContentArea:
@@ -270,7 +273,8 @@ class _Placement:
         if self.has_holes:  # holes := the content's mean colour (cleared, then the mean added, both masked)
             mean = tuple(float(round(v)) for v in cv2.mean(box, mask=self.inside_u8)[:3]) + (0.0,)
             cv2.subtract(box, box, dst=box, mask=self.holes_u8)
-            cv2.add(box, mean, dst=box, mask=self.holes_u8)
+            # ``mean`` is a Scalar, which cv2.add takes as src2; its stubs list arrays only
+            cv2.add(box, mean, dst=box, mask=self.holes_u8)  # type: ignore[call-overload]
         return box
 
     def output(self, frame: np.ndarray, enhanced_box: np.ndarray) -> np.ndarray:

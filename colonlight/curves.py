@@ -42,7 +42,7 @@ def gain_gamma_lut(gain: float, gamma: float) -> np.ndarray:
     return np.rint(255.0 * np.minimum(1.0, gain * _LEVELS**gamma)).astype(np.uint8)
 
 
-def curve_lut(knots: Sequence[float], values: Sequence[float]) -> np.ndarray:
+def curve_lut(knots: Sequence[float] | np.ndarray, values: Sequence[float] | np.ndarray) -> np.ndarray:
     """The table of ``round(255 * min(1, f(v / 255)))`` for the piecewise-linear curve ``f`` through
     ``(knots[i], values[i])``, as uint8. ``values`` must be finite and non-decreasing, ``knots`` increasing."""
     x = np.asarray(knots, dtype=np.float64)

@@ -30,7 +30,7 @@ IMAGE_SUFFIXES: frozenset[str] = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".t
 _DIGITS = re.compile(r"([0-9]+)")
 
 
-def natural_key(name: str) -> tuple:
+def natural_key(name: str) -> tuple[tuple[tuple[int, int, str], ...], str]:
     """Sort key putting ``frame2`` before ``frame10``: digit runs compare as numbers, text case-insensitively.
 
     Ties (``f01``/``f1``, ``A``/``a``) fall back to the plain name, so the order is total and stable.

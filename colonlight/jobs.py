@@ -9,6 +9,7 @@ clip is enhanced, skipped and failed the same way everywhere. This module sits b
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import time
@@ -128,15 +129,11 @@ def _discard_partial_outputs(out_dir: Path) -> None:
                 p.unlink(missing_ok=True)
     except OSError:
         pass
-    try:
+    with contextlib.suppress(OSError):
         (out_dir / VIDEO_FILE).unlink(missing_ok=True)
-    except OSError:
-        pass
     for folder in (frames_dir, out_dir):
-        try:
+        with contextlib.suppress(OSError):
             folder.rmdir()  # only if now empty
-        except OSError:
-            pass
 
 
 def _os_error_line(job: ClipJob, exc: OSError) -> str:

@@ -39,7 +39,7 @@ def content_masks(inputs: Sequence[np.ndarray]) -> list[np.ndarray]:
 def mean_luma(frames: Sequence[np.ndarray], masks: Sequence[np.ndarray]) -> np.ndarray:
     """Mean luma over each frame's mask (NaN where a mask is empty)."""
     out = []
-    for f, m in zip(frames, masks):
+    for f, m in zip(frames, masks, strict=False):
         out.append(float(luma(f)[m].mean()) if m.any() else float("nan"))
     return np.array(out)
 
@@ -127,10 +127,14 @@ def clip_lighting(
     p_in = p_out = None
     if clean is not None:
         p_in = psnr_from_mse(
-            float(np.nanmean([mse(i, c, m) for i, c, m in zip(inputs[skip:], clean[skip:], masks[skip:])]))
+            float(
+                np.nanmean([mse(i, c, m) for i, c, m in zip(inputs[skip:], clean[skip:], masks[skip:], strict=False)])
+            )
         )
         p_out = psnr_from_mse(
-            float(np.nanmean([mse(o, c, m) for o, c, m in zip(outputs[skip:], clean[skip:], masks[skip:])]))
+            float(
+                np.nanmean([mse(o, c, m) for o, c, m in zip(outputs[skip:], clean[skip:], masks[skip:], strict=False)])
+            )
         )
     return ClipLighting(
         flicker_in=flicker(inputs, masks),

@@ -13,6 +13,7 @@ takes it again); it does not serialise threads of one process.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import fcntl
 import json
@@ -139,10 +140,8 @@ def output_lock(out_root: Path) -> Iterator[Path]:
             held[1] -= 1
             if held[1] == 0:
                 del _HELD[ident]
-                try:
+                with contextlib.suppress(OSError):
                     os.ftruncate(held[0], 0)  # nobody holds it now (and the folder's bytes do not depend on who did)
-                except OSError:
-                    pass
                 os.close(held[0])  # closing the last descriptor releases the flock
 
 

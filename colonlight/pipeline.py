@@ -387,7 +387,7 @@ def _enhance_clip(
 
     write_slam_layout(out_dir, records, opts.format if opts.frames else None, camera)
     settings = settings_record(method, opts)
-    gammas = {
+    gammas: dict[str, Any] = {
         "clip": clip_name,
         "source": str(source),
         "fps": fps_out,
@@ -417,7 +417,8 @@ def _enhance_clip(
 
 
 def _source_rate(head: list[DecodedFrame]) -> float:
-    """The rate of a clip kept at its own frame rate, from its first two timestamps (fallback :data:`~colonlight.limits.DEFAULT_FPS`)."""
+    """The rate of a clip kept at its own frame rate, from its first two timestamps (fallback
+    :data:`~colonlight.limits.DEFAULT_FPS`)."""
     dt = head[1].source_time_s - head[0].source_time_s
     return 1.0 / dt if dt > 0 else DEFAULT_FPS
 

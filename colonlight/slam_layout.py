@@ -120,9 +120,11 @@ def _parse_dso(lines: list[str]) -> tuple[Size, ...]:
     _dso_model(lines[0])
     in_size = _size(lines[1], "line 2 (input size)")
     third = lines[2].strip()
-    if third not in _DSO_OUTPUT_WORDS:
-        if len(_numbers(third.split(), "line 3 (crop, full, none or 'fx fy cx cy 0')")) != 5:
-            raise ValueError("line 3: expected crop, full, none or 5 numbers (relative output intrinsics)")
+    if (
+        third not in _DSO_OUTPUT_WORDS
+        and len(_numbers(third.split(), "line 3 (crop, full, none or 'fx fy cx cy 0')")) != 5
+    ):
+        raise ValueError("line 3: expected crop, full, none or 5 numbers (relative output intrinsics)")
     _size(lines[3], "line 4 (output size)")
     return (in_size,)
 
@@ -251,7 +253,11 @@ def times_text(records: Sequence[dict[str, Any]]) -> str:
 
 def tum_rgb_text(records: Sequence[dict[str, Any]], fmt: str, frames_dir: str = "frames") -> str:
     """TUM's ``rgb.txt``: three comment lines (``mono_tum`` skips exactly three), then ``time path`` per frame."""
-    head = "# color images\n# written by colonlight enhance: source time (s) of each enhanced frame\n# timestamp filename\n"
+    head = (
+        "# color images\n"
+        "# written by colonlight enhance: source time (s) of each enhanced frame\n"
+        "# timestamp filename\n"
+    )
     return head + "".join(f"{r['source_time_s']:.6f} {frames_dir}/{r['index']:06d}.{fmt}\n" for r in records)
 
 

@@ -132,7 +132,7 @@ def initial_net(cfg: TrainConfig) -> GammaNet:
 def load_sequences(clips: Sequence[Path], cfg: TrainConfig) -> SequenceSet:
     """The training windows of ``clips``; for a supervised objective, with each clip's clean frames."""
     arrays = [load_clip_array(p, cfg.size, cfg.fps) for p in clips]
-    clean = None
+    clean: list[np.ndarray] | None = None
     if cfg.supervised:
         clean = []
         for p in clips:
@@ -452,7 +452,8 @@ def train(
     on_step: ProgressFn | None = None,
     on_epoch: Callable[[EpochRecord], None] | None = None,
 ) -> TrainResult:
-    """Train on ``train_clips`` (videos or frame folders), validate on ``val_clips``, write ``run_dir/NAME.safetensors``.
+    """Train on ``train_clips`` (videos or frame folders), validate on ``val_clips``, write
+    ``run_dir/NAME.safetensors``.
 
     A state is saved after every epoch in ``run_dir/checkpoints``; with ``resume`` a rerun continues from the last
     one. Runs are deterministic for a given seed, data and thread count. ``on_step(epoch, step, steps, loss)``
@@ -471,7 +472,8 @@ def train(
     if cfg.frozen_bn:
         net.bn.eval()
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
-    start_epoch, history = 0, []
+    start_epoch = 0
+    history: list[EpochRecord] = []
     state_path = latest_state(run_dir) if resume else None
     if state_path is not None:
         start_epoch, history = _load_state(state_path, net, opt)

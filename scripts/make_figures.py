@@ -44,7 +44,7 @@ def main() -> None:
     ]
     labels = ["as recorded", "enhanced (colonlight)", "clean (fixed exposure)"]
     strip = []
-    for label, row in zip(labels, rows):
+    for label, row in zip(labels, rows, strict=True):
         bar = np.full((22, row.shape[1], 3), 30, np.uint8)
         cv2.putText(bar, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (235, 235, 235), 1, cv2.LINE_AA)
         strip += [bar, row]

@@ -9,6 +9,7 @@ is kept only as a label, never as a path.
 
 from __future__ import annotations
 
+import contextlib
 import re
 import unicodedata
 from collections.abc import AsyncIterator
@@ -142,7 +143,8 @@ def _boundary(request: Request) -> bytes:
         raise ApiError(
             415,
             "unsupported_media_type",
-            f"send the clip as multipart/form-data in a part named `{FILE_FIELD}` (got {ctype[:80] or 'no content type'!r})",
+            f"send the clip as multipart/form-data in a part named `{FILE_FIELD}` "
+            f"(got {ctype[:80] or 'no content type'!r})",
             CLOSE,
         )
     boundary = params.get(b"boundary")
@@ -208,8 +210,9 @@ async def receive_upload(
     """Stream the multipart body of ``request``: the ``file`` part to ``dest``, other parts as text fields.
 
     Raises :class:`ApiError`: 415 (not multipart), 413 (over ``max_bytes``, checked against Content-Length first
-    and then while reading), 408 (too few body bytes in a window of ``idle_seconds``, see :func:`_chunks`), 507 (the disk is full), 400 (malformed
-    body), 422 (no file part, too many or too long fields). ``dest`` is removed on every error.
+    and then while reading), 408 (too few body bytes in a window of ``idle_seconds``, see :func:`_chunks`), 507
+    (the disk is full), 400 (malformed body), 422 (no file part, too many or too long fields). ``dest`` is
+    removed on every error.
     """
     boundary = _boundary(request)
     declared = request.headers.get("content-length")
@@ -257,8 +260,6 @@ async def receive_upload(
 
 def _cleanup(fh: IO[bytes] | None, dest: Path) -> None:
     if fh is not None:
-        try:
+        with contextlib.suppress(OSError):
             fh.close()
-        except OSError:
-            pass
     dest.unlink(missing_ok=True)

@@ -33,7 +33,8 @@ def invoke(*args: str) -> tuple[int, str]:
 
 @pytest.fixture()
 def tree(tmp_path: Path) -> Path:
-    """videos/site1/p7.mp4 (25 fps, 2 s), videos/site 2/clip ü.mov (30 fps), videos/seq/ (12 PNG frames), a text file."""
+    """videos/site1/p7.mp4 (25 fps, 2 s), videos/site 2/clip ü.mov (30 fps), videos/seq/ (12 PNG frames), a text
+    file."""
     root = tmp_path / "videos"
     make_clip(root / "site1" / "p7.mp4", n_frames=50, fps=25)
     make_clip(root / "site 2" / "clip ü.mov", n_frames=30, fps=30)

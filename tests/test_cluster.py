@@ -7,6 +7,7 @@ Misconfigured clusters (no scheduler, no worker, workers that do not share the f
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -147,10 +148,8 @@ class LoopbackCluster:
             client.close(timeout=5)
         for proc in reversed(self.procs):
             if proc.poll() is None:
-                try:
+                with contextlib.suppress(ProcessLookupError):
                     os.killpg(proc.pid, signal.SIGTERM)
-                except ProcessLookupError:
-                    pass
         for proc in self.procs:
             try:
                 proc.wait(timeout=5)
@@ -185,7 +184,8 @@ def weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def videos(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Five clips: four videos long enough to be killed in the middle of (100 frames at 18 fps each), one frame folder."""
+    """Five clips: four videos long enough to be killed in the middle of (100 frames at 18 fps each), one frame
+    folder."""
     root = tmp_path_factory.mktemp("videos")
     for i in range(4):
         make_clip(root / f"site{i % 2}" / f"clip{i}.mp4", n_frames=130 + 10 * i, fps=25, size=(160, 120))

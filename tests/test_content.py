@@ -163,12 +163,12 @@ def test_border_and_text_pixels_unchanged(scene: np.ndarray, spec: OverlaySpec, 
     enhance_clip(write_folder(tmp_path / "clip", frames), tmp_path / "out", create_method("rnn"), ClipOptions(fps=None))
     out = read_frames(tmp_path / "out" / "frames")
     assert len(out) == len(frames)
-    for f_in, f_out in zip(frames, out):
+    for f_in, f_out in zip(frames, out, strict=True):
         assert np.array_equal(f_out[~content], f_in[~content])
     record = json.loads((tmp_path / "out" / "gammas.json").read_text())
     assert record["settings"]["content"] == "auto"
     assert record["frames"][0]["content"]["fov_fraction"] < 0.95  # the area is recorded with the first frame
-    changed = [not np.array_equal(a[content], b[content]) for a, b in zip(frames, out)]
+    changed = [not np.array_equal(a[content], b[content]) for a, b in zip(frames, out, strict=True)]
     assert sum(changed) >= len(frames) - 2 - 3  # the content is enhanced (seed frames and gamma ~ 1 aside)
 
 
@@ -180,10 +180,10 @@ def test_any_method_keeps_border_pixels(scene: np.ndarray, method: str) -> None:
     _, content = truth(spec)
     results = run_stream(ContentStream(create_method(method).stream()), frames)
     assert len(results) == len(frames)
-    for f_in, res in zip(frames, results):
+    for f_in, res in zip(frames, results, strict=True):
         assert np.array_equal(res.frame[~content], f_in[~content])
     plain = run_stream(create_method(method).stream(), frames)
-    assert any(not np.array_equal(a.frame[content], b.frame[content]) for a, b in zip(results, plain))
+    assert any(not np.array_equal(a.frame[content], b.frame[content]) for a, b in zip(results, plain, strict=True))
 
 
 def test_gammas_match_the_clip_without_its_border(scene: np.ndarray) -> None:

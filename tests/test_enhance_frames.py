@@ -22,7 +22,7 @@ def test_enhance_frames_yields_one_result_per_frame_given(method: str) -> None:
     if method == "deflicker":
         assert len(pushed) < len(frames)  # push alone drops the look-ahead's last frames: the trap this avoids
     expected = pushed + held_back.flush()
-    assert all(np.array_equal(a.frame, b.frame) for a, b in zip(out, expected))
+    assert all(np.array_equal(a.frame, b.frame) for a, b in zip(out, expected, strict=True))
     by_name = list(colonlight.enhance_frames(frames, method))
     assert [r.gamma for r in by_name] == [r.gamma for r in out]
 

@@ -38,7 +38,7 @@ def _on_arrival(pts: list[int], tb: Fraction, fps: float, durations: list[int]) 
     choice.start_segment(tb)
     chosen: dict[int, int] = {}
     arrived_at: dict[int, int] = {}
-    for i, (p, d) in enumerate(zip(pts, durations)):
+    for i, (p, d) in enumerate(zip(pts, durations, strict=True)):
         for c in choice.push(p, p + d):
             chosen[c.index] = c.source_index
             arrived_at[c.index] = i + 1
@@ -57,18 +57,18 @@ def test_constant_rate_choice_is_ffmpegs_and_decided_on_arrival(rate: Fraction) 
     chosen, arrived = _on_arrival(pts, tb, 18, [step] * len(pts))
     assert chosen == _exact(pts, tb, 18, step)
     # every output frame is decided as soon as its own source frame is in: no wait for the next one
-    assert all(n == src + 1 for n, src in zip(arrived, chosen))
+    assert all(n == src + 1 for n, src in zip(arrived, chosen, strict=True))
 
 
 def test_variable_rate_choice_stays_close_to_ffmpegs() -> None:
     tb = Fraction(1, 1000)
     times = vfr_times(200)
     pts = [round(t * 1000) for t in times]
-    durations = [max(1, b - a) for a, b in zip(pts, pts[1:])] + [40]
+    durations = [max(1, b - a) for a, b in zip(pts, pts[1:], strict=False)] + [40]
     chosen, _ = _on_arrival(pts, tb, 18, [40] * len(pts))  # predictions deliberately off (25 fps guess)
     exact = _exact(pts, tb, 18, 40)
     assert len(chosen) == len(exact)  # the same slots, one frame each
-    assert max(abs(a - b) for a, b in zip(chosen, exact)) <= 2
+    assert max(abs(a - b) for a, b in zip(chosen, exact, strict=True)) <= 2
     # with true durations (a camera that states them) the choice is FFmpeg's exactly
     assert _on_arrival(pts, tb, 18, durations)[0] == exact
 

@@ -58,7 +58,7 @@ def _onnx_a(onnx_path: Path, frames: list[np.ndarray]) -> np.ndarray:
     out = []
     for frame in frames:
         x = network_input(frame, size).astype(np.float32).transpose(2, 0, 1)[None] / 255.0
-        result = dict(zip(names, session.run(None, {"frame": x, **state})))
+        result = dict(zip(names, session.run(None, {"frame": x, **state}), strict=True))
         state = {n: result[f"{n}_out"] for n in state}
         out.append(np.asarray(result[names[0]], np.float64).reshape(-1))  # the head's output(s): a, or z
     return np.array(out)

@@ -108,7 +108,8 @@ def test_drop_a_clip_and_watch_it(server: ServiceServer, tmp_path: Path) -> None
                     const bytes = Uint8Array.from(atob(b64), c => c.charCodeAt(0));
                     const dt = new DataTransfer();
                     dt.items.add(new File([bytes], name, {type: 'video/mp4'}));
-                    document.querySelector('#drop').dispatchEvent(new DragEvent('drop', {dataTransfer: dt, bubbles: true, cancelable: true}));
+                    const drop = new DragEvent('drop', {dataTransfer: dt, bubbles: true, cancelable: true});
+                    document.querySelector('#drop').dispatchEvent(drop);
                 }""",
                 [base64.b64encode(clip.read_bytes()).decode(), clip.name],
             )

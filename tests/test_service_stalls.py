@@ -166,7 +166,6 @@ def test_slow_upload_that_keeps_progressing_is_not_cut_off(server: ServiceServer
 def test_trickling_upload_is_cut_off(server: ServiceServer) -> None:
     """10 bytes every half second (20 B/s, under MIN_RATE): answered 408 while it is still sending, file removed."""
     sock = stalled_upload(server)
-    t0 = time.monotonic()
     stop = threading.Event()
 
     def trickle() -> None:

@@ -7,6 +7,7 @@ every limit can be reached quickly. The results are checked against the engine r
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import math
 import os
@@ -168,7 +169,7 @@ def test_results_come_in_order_with_one_state_per_connection(server: ServiceServ
         assert ready["parameters"]["seeds"] == 2 and ready["max_pixels"] > 0
         got: dict[str, list[tuple[dict[str, Any], np.ndarray]]] = {"a": [], "b": []}
         for i in range(10):
-            for name, ws, frames in (("a", a, a_frames), ("b", b, b_frames)):
+            for ws, frames in ((a, a_frames), (b, b_frames)):
                 ws.send(json.dumps({"type": "frame", "time": i / 30}))
                 ws.send(png(frames[i]))
             for name, ws in (("a", a), ("b", b)):
@@ -186,7 +187,7 @@ def test_results_come_in_order_with_one_state_per_connection(server: ServiceServ
         assert [r["time"] for r in records] == [i / 30 for i in range(10)]
         assert [r.get("seed", False) for r in records] == [True, True] + [False] * 8
         assert all((r["width"], r["height"]) == (160, 120) and r["latency_ms"] >= 0 for r in records)
-        for (record, image), (gamma, frame) in zip(got[name], expected):
+        for (record, image), (gamma, frame) in zip(got[name], expected, strict=True):
             assert record["gamma"] == pytest.approx(gamma, abs=1e-5)
             assert np.abs(image.astype(int) - frame).max() <= 1  # PNG: lossless, up to a LUT rounding
         assert len({round(r["gamma"], 4) for r in records[2:]}) > 3  # the state moves: not one constant gamma
@@ -304,10 +305,8 @@ def test_a_message_over_the_size_limit_closes_with_1009(server: ServiceServer) -
         with open_stream(server) as ws:
             ws.send(json.dumps({"type": "start"}))
             assert recv_json(ws)["type"] == "ready"
-            try:
+            with contextlib.suppress(ConnectionClosed, OSError):
                 ws.send(b"\xff\xd8" + bytes(2 * 2**20))  # 2 MiB, over COLONLIGHT_STREAM_MAX_FRAME_MB=1
-            except (ConnectionClosed, OSError):
-                pass
             try:
                 codes.append(closed_with(ws)[0])
             except (ConnectionClosed, OSError, AssertionError):  # reset: no close frame reached this side

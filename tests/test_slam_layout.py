@@ -83,7 +83,7 @@ def test_resampled_clip_lists_each_frame_at_its_source_time_and_copies_the_camer
     clip = tmp_path / "o" / "c25"
     dso, tum = _times(clip / "times.txt"), _tum(clip / "rgb.txt")
     assert len(dso) == len(tum) == len(list((clip / "frames").glob("*.png"))) == 36  # 2 s at 18 fps
-    for (index, t_dso), (t_tum, rel) in zip(dso, tum):
+    for (index, t_dso), (t_tum, rel) in zip(dso, tum, strict=True):
         source_index = read_index(cv2.cvtColor(cv2.imread(str(clip / rel)), cv2.COLOR_BGR2RGB))
         assert rel == f"frames/{index}.png"
         assert t_dso == t_tum == pytest.approx(source_index / 25, abs=1e-6)  # which source frame it is, and its time

@@ -109,9 +109,8 @@ def test_train_on_synthetic_folders_reads_their_lossless_frames_beside_clean(tmp
     """``colonlight synth`` then ``colonlight train`` on the same folder: each clip folder is one clip, read from
     its frames/ (frame for frame beside clean/), not from its H.264 clip.mp4 (at 30 fps, which the 18 fps
     extraction would thin out, so clean/ would not match it)."""
-    from typer.testing import CliRunner
-
     from colonlight_cli.main import app
+    from typer.testing import CliRunner
 
     runner = CliRunner()
     clips = tmp_path / "clips"

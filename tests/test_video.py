@@ -156,7 +156,7 @@ def test_rgb_conversion_is_pyavs_to_ndarray(tmp_path: Path, codec_args: list[str
     with av.open(str(path)) as c:
         theirs = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
     assert len(ours) == len(theirs) == 12
-    for a, b in zip(ours, theirs):
+    for a, b in zip(ours, theirs, strict=True):
         np.testing.assert_array_equal(a, b)
 
 
@@ -233,7 +233,7 @@ def test_rotation_metadata_gives_upright_frames_like_ffmpeg(tmp_path: Path, degr
     reference = list(ffmpeg_frames(path))
     frames = _ours(path, None)
     assert len(frames) == len(reference) == 6
-    for ours, theirs in zip(frames, reference):
+    for ours, theirs in zip(frames, reference, strict=True):
         assert ours.image.shape == theirs.shape
         assert np.abs(ours.image.astype(int) - theirs.astype(int)).mean() < 1.0
     info = probe_video(path)

@@ -275,8 +275,14 @@ def find_clips(inputs: Sequence[Path]) -> list[ClipRef]:
             continue
         jobs = discover_clips([inp], Path("."))
         folders = [synthetic_folder_of(job.source) for job in jobs]
-        refs += [ClipRef(job.name, folder, "synthetic") for job, folder in zip(jobs, folders) if folder is not None]
-        refs += [ClipRef(job.name, job.source, "video") for job, folder in zip(jobs, folders) if folder is None]
+        refs += [
+            ClipRef(job.name, folder, "synthetic")
+            for job, folder in zip(jobs, folders, strict=True)
+            if folder is not None
+        ]
+        refs += [
+            ClipRef(job.name, job.source, "video") for job, folder in zip(jobs, folders, strict=True) if folder is None
+        ]
     return refs
 
 
@@ -310,7 +316,7 @@ def _is_complete(folder: Path, cfg: SynthConfig, seed: int) -> bool:
         meta = json.loads((folder / SYNTH_MARKER).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return False
-    return meta.get("seed") == seed and meta.get("config") == json.loads(json.dumps(cfg.to_dict()))
+    return bool(meta.get("seed") == seed and meta.get("config") == json.loads(json.dumps(cfg.to_dict())))
 
 
 def _render_job(args: tuple[Path, dict[str, Any], int]) -> Path:

@@ -94,7 +94,8 @@ def _flow_image(frame: np.ndarray) -> np.ndarray:
 
 def flow_correspondences(frames: Sequence[np.ndarray]) -> list[Correspondence]:
     """DIS optical flow ``t-1 -> t`` per pair, with a forward-backward consistency check."""
-    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    # cv2's stubs have neither this factory nor calc()'s optional flow argument (None) used below
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)  # type: ignore[attr-defined]
     grey = [_flow_image(f) for f in frames]
     h, w = grey[0].shape
     u, v = _grid(h, w)
@@ -130,6 +131,7 @@ def ssim_map(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """
     from skimage.metrics import structural_similarity
 
+    full: np.ndarray
     _, full = structural_similarity(
         a, b, data_range=1.0, gaussian_weights=True, sigma=SSIM_SIGMA, use_sample_covariance=False, full=True
     )

@@ -48,7 +48,8 @@ class LevelStats:
         """Mean squared error (grey levels^2) of each table in ``luts`` (..., 256) against the clean frame."""
         L = np.asarray(luts, dtype=np.float64)
         sse = (L * L) @ self.count - 2.0 * (L @ self.total) + self.squares.sum()
-        return sse / max(self.count.sum(), 1.0)
+        mse: np.ndarray = sse / max(self.count.sum(), 1.0)
+        return mse
 
 
 def level_stats(frame: np.ndarray, clean: np.ndarray) -> LevelStats:

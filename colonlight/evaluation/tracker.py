@@ -193,7 +193,7 @@ class _Level:
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.image.shape  # type: ignore[return-value]
+        return self.image.shape
 
 
 def _grey(frame: np.ndarray) -> np.ndarray:
@@ -205,7 +205,8 @@ def _half(img: np.ndarray) -> np.ndarray:
     """2x2 block mean (odd last row/column dropped)."""
     h, w = img.shape[0] // 2 * 2, img.shape[1] // 2 * 2
     x = img[:h, :w]
-    return 0.25 * (x[0::2, 0::2] + x[1::2, 0::2] + x[0::2, 1::2] + x[1::2, 1::2])
+    mean: np.ndarray = 0.25 * (x[0::2, 0::2] + x[1::2, 0::2] + x[0::2, 1::2] + x[1::2, 1::2])
+    return mean
 
 
 def _half_depth(depth: np.ndarray, edge_ratio: float) -> np.ndarray:
@@ -214,7 +215,7 @@ def _half_depth(depth: np.ndarray, edge_ratio: float) -> np.ndarray:
     x = depth[:h, :w]
     q = np.stack([x[0::2, 0::2], x[1::2, 0::2], x[0::2, 1::2], x[1::2, 1::2]])
     lo, hi = q.min(axis=0), q.max(axis=0)
-    out = q.mean(axis=0)
+    out: np.ndarray = q.mean(axis=0)
     out[~np.isfinite(hi) | (hi > edge_ratio * lo)] = np.inf
     return out
 
@@ -288,7 +289,7 @@ def _select(level: _Level, depth: np.ndarray, target: int, region: int, s: Track
     score = np.where(usable, grad - _region_threshold(grad, region, s.grad_threshold), -np.inf)
     grad[~usable] = -np.inf
     ch, cw = h // cell, w // cell
-    blocks = score[: ch * cell, : cw * cell].reshape(ch, cell, cw, cell).transpose(0, 2, 1, 3)
+    blocks: np.ndarray = score[: ch * cell, : cw * cell].reshape(ch, cell, cw, cell).transpose(0, 2, 1, 3)
     blocks = blocks.reshape(ch, cw, cell * cell)
     best = blocks.argmax(axis=-1)
     best_score = np.take_along_axis(blocks, best[..., None], axis=-1)[..., 0]

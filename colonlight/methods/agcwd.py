@@ -39,15 +39,13 @@ def agcwd_lut(v: np.ndarray, alpha: float = 0.5) -> np.ndarray:
     hist = np.bincount(v.ravel(), minlength=256).astype(np.float64)
     pdf = hist / hist.sum()
     pmin, pmax = pdf.min(), pdf.max()
-    if pmax > pmin:
-        pdf_w = pmax * ((pdf - pmin) / (pmax - pmin)) ** alpha
-    else:
-        pdf_w = pdf
+    pdf_w = pmax * ((pdf - pmin) / (pmax - pmin)) ** alpha if pmax > pmin else pdf
     cdf_w = np.cumsum(pdf_w) / pdf_w.sum()
     gamma = np.clip(1.0 - cdf_w, 0.0, 1.0)
     lut = 255.0 * (_LEVELS / 255.0) ** gamma
     lut[0] = 0.0
-    return np.clip(np.rint(lut), 0, 255).astype(np.uint8)
+    table: np.ndarray = np.clip(np.rint(lut), 0, 255).astype(np.uint8)
+    return table
 
 
 class _AgcwdStream(MethodStream):

@@ -81,7 +81,8 @@ def set_luma(frame: np.ndarray, luma: np.ndarray, target: np.ndarray) -> np.ndar
     hi = (t + 16383 - num) // step
     ideal = np.rint((target.astype(np.float32) - luma) * np.float32(255.0 / 219.0)).astype(np.int32)
     o = np.clip(ideal, lo, hi).astype(np.int16)
-    return np.clip(frame.astype(np.int16) + o[..., None], 0, 255).astype(np.uint8)
+    shifted: np.ndarray = np.clip(frame.astype(np.int16) + o[..., None], 0, 255).astype(np.uint8)
+    return shifted
 
 
 def plane_luminance(plane: np.ndarray, ffmpeg_compatible: bool = False) -> float:

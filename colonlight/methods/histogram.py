@@ -35,7 +35,8 @@ def equalize_luma(frame: np.ndarray) -> np.ndarray:
 
 def value_channel(frame: np.ndarray) -> np.ndarray:
     """V of HSV, ``max(R, G, B)``, as ``(H, W)`` uint8 (an elementwise chain: ``max(axis=2)`` is ~15x slower)."""
-    return np.maximum(np.maximum(frame[..., 0], frame[..., 1]), frame[..., 2])
+    v: np.ndarray = np.maximum(np.maximum(frame[..., 0], frame[..., 1]), frame[..., 2])
+    return v
 
 
 def scale_value(frame: np.ndarray, v_new: np.ndarray, v: np.ndarray | None = None) -> np.ndarray:
@@ -57,7 +58,7 @@ def scale_value(frame: np.ndarray, v_new: np.ndarray, v: np.ndarray | None = Non
     if v is None:
         v = value_channel(frame)
     ratio = v_new.astype(np.float32) / np.maximum(v, 1).astype(np.float32)
-    out = np.rint(frame.astype(np.float32) * ratio[..., None])
+    out: np.ndarray = np.rint(frame.astype(np.float32) * ratio[..., None])
     out = np.clip(out, 0, 255).astype(np.uint8)
     black = v == 0
     if black.any():

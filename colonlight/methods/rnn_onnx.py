@@ -9,6 +9,7 @@ spinning: the step must not take the cores that decoding and encoding use. CPU o
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -63,10 +64,8 @@ def _new_graph(weights: LoadedWeights, size: int) -> bytes:
     worst = compare_with_torch(weights, cpu_session(data), sig, frames)
     if not worst <= CHECK_TOLERANCE:
         raise ExportError(f"{weights.path}: ONNX Runtime differs from torch by {worst:.3g}; use --runtime torch")
-    try:
+    with contextlib.suppress(OSError):  # a read-only home: run from memory, export again next time
         write_bytes_atomic(path, data)
-    except OSError:  # a read-only home: run from memory, export again next time
-        pass
     return data
 
 
@@ -86,7 +85,7 @@ class OnnxStep:
 
     def __call__(self, frame: torch.Tensor, state: Any) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
         sig = self.signature
-        feeds = dict(zip(sig.state_names, state if state is not None else sig.zero_state()))
+        feeds = dict(zip(sig.state_names, state if state is not None else sig.zero_state(), strict=True))
         a, *new_state = self.session.run(None, {"frame": frame.numpy(), **feeds})
         return a, tuple(new_state)
 
@@ -94,7 +93,7 @@ class OnnxStep:
 def make_step(weights: LoadedWeights, size: int | None, device: torch.device, runtime: str = "torch") -> StepFn:
     """The step function the rnn method calls per frame: the network's own (``torch``) or ONNX Runtime's."""
     if runtime == "torch":
-        return weights.net.step  # type: ignore[return-value]
+        return weights.net.step
     if runtime != "onnxruntime":
         raise OptionError(f"unknown runtime {runtime!r}; choose {' or '.join(RUNTIMES)}")
     if size is None:

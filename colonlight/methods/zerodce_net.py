@@ -30,7 +30,7 @@ WEIGHTS_FORMAT = "colonlight-zerodce"
 N_FEATURES = 32
 
 
-def _skip_forward(net: nn.Module, x: torch.Tensor) -> torch.Tensor:
+def _skip_forward(net: DceNet | DcePlusPlusNet, x: torch.Tensor) -> torch.Tensor:
     """The seven-layer DCE-Net topology shared by both variants: ReLU after layers 1-6, skips by concatenation
     (c5 <- [c3, c4], c6 <- [c2, c5], c7 <- [c1, c6]), tanh on the curve maps."""
     x1 = F.relu(net.e_conv1(x))
@@ -74,7 +74,8 @@ class _DepthwiseSeparable(nn.Module):
         self.point_conv = nn.Conv2d(in_ch, out_ch, 1, 1, 0)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.point_conv(self.depth_conv(x))
+        y: torch.Tensor = self.point_conv(self.depth_conv(x))
+        return y
 
 
 class DcePlusPlusNet(nn.Module):
@@ -163,7 +164,8 @@ def plusplus_alpha(net: DcePlusPlusNet, x: torch.Tensor, scale: int) -> torch.Te
         ``(B, 3, H, W)`` in [-1, 1].
     """
     if scale == 1:
-        return net(x)
+        alpha: torch.Tensor = net(x)
+        return alpha
     h, w = x.shape[-2:]
     ph, pw = -h % scale, -w % scale
     if ph or pw:

@@ -149,7 +149,8 @@ def train_zerodce(
     for epoch in range(epochs):
         t0 = time.perf_counter()
         order = rng.permutation(len(data))
-        total, terms_sum, n_seen = 0.0, {}, 0
+        terms_sum: dict[str, float] = {}
+        total, n_seen = 0.0, 0
         for start in range(0, len(order), batch):
             x = data.batch(order[start : start + batch])
             enhanced, alphas = _forward(net, x, iterations)

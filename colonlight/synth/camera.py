@@ -46,7 +46,8 @@ class Intrinsics:
         """Unit ray directions (H*W, 3) in camera coordinates, row-major."""
         u, v = np.meshgrid(np.arange(self.width, dtype=np.float64), np.arange(self.height, dtype=np.float64))
         d = np.stack([(u - self.cx) / self.fx, (v - self.cy) / self.fy, np.ones_like(u)], axis=-1).reshape(-1, 3)
-        return d / np.linalg.norm(d, axis=1, keepdims=True)
+        unit: np.ndarray = d / np.linalg.norm(d, axis=1, keepdims=True)
+        return unit
 
     def to_dict(self) -> dict[str, float | int | str]:
         return {
@@ -151,10 +152,10 @@ def plan_trajectory(
     z = z.astype(np.float64).copy()
     is_fold = np.isfinite(occ.fold_gap) & (env > 0)
     if is_fold.any() and len(tube.fold_z):
-        for i in np.nonzero(is_fold)[0]:
-            ahead = tube.fold_z[tube.fold_z > z[i] + occ.fold_gap[i]]
+        for k in np.nonzero(is_fold)[0]:
+            ahead = tube.fold_z[tube.fold_z > z[k] + occ.fold_gap[k]]
             if len(ahead):
-                z[i] = (1 - env[i]) * z[i] + env[i] * (ahead[0] - occ.fold_gap[i])
+                z[k] = (1 - env[k]) * z[k] + env[k] * (ahead[0] - occ.fold_gap[k])
         # keep the slide smooth between frames that target different crests
         z = np.convolve(np.pad(z, 1, mode="edge"), np.ones(3) / 3, mode="valid") if n > 2 else z
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..atomic import write_bytes_atomic
 from .clip import Scene, build_scene, render_frame
-from .config import SynthConfig
+from .config import OccluderMode, Split, SynthConfig
 
 LABEL_W = 120
 
@@ -26,9 +26,9 @@ class SheetRow:
 
     label: str
     seed: int
-    split: str = "train"
+    split: Split = "train"
     steady: bool = False
-    close_occluder: str = "random"
+    close_occluder: OccluderMode = "random"
     show: tuple[str, ...] = ("image",)
 
 
@@ -92,13 +92,13 @@ def contact_sheet(
     for row in rows:
         cfg = SynthConfig.sample(
             np.random.default_rng(row.seed),
-            split=row.split,  # type: ignore[arg-type]
+            split=row.split,
             width=size,
             height=size,
             n_frames=n_frames,
             steady=row.steady,
             close_occluder=row.close_occluder,
-        )  # type: ignore[arg-type]
+        )
         scene = build_scene(cfg, row.seed)
         frames = [render_frame(scene, int(i)) for i in _pick(scene, picks, "clean" in row.show)]
         for kind in row.show:

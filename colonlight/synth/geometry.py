@@ -309,17 +309,20 @@ class Tube:
         """Unit centre-line tangents (N,3)."""
         row = self._lerp_rows(self._rows2, np.asarray(z, np.float32))
         t = np.stack([row[:, _DCX], row[:, _DCY], np.ones(len(row), np.float32)], axis=1).astype(np.float64)
-        return t / np.linalg.norm(t, axis=1, keepdims=True)
+        unit: np.ndarray = t / np.linalg.norm(t, axis=1, keepdims=True)
+        return unit
 
     def min_radius(self, z: np.ndarray) -> np.ndarray:
         """A conservative free radius around the centre line at ``z`` (for placing the camera)."""
         iz = np.clip(np.rint((np.asarray(z) - self.z0) / DZ).astype(np.int64), 0, len(self.safe) - 1)
         free = self.safe[iz] > 0
-        return DR * free.sum(axis=1).astype(np.float64)
+        radius: np.ndarray = DR * free.sum(axis=1).astype(np.float64)
+        return radius
 
     def arc_at(self, z: np.ndarray) -> np.ndarray:
         """Texture coordinate along the tube (mm) at heights ``z``."""
-        return np.interp(z, self.z0 + DZ * np.arange(len(self.arc)), self.arc)
+        arc: np.ndarray = np.interp(z, self.z0 + DZ * np.arange(len(self.arc)), self.arc)
+        return arc
 
 
 def _grad(
@@ -338,7 +341,8 @@ def _to_diamond(c: np.ndarray, s: np.ndarray) -> np.ndarray:
     a = np.abs(c) + np.abs(s)
     u = c / a
     v = s / a
-    return np.where(s >= 0, np.where(c >= 0, v, 1 - u), np.where(c < 0, 2 - v, 3 + u))
+    p: np.ndarray = np.where(s >= 0, np.where(c >= 0, v, 1 - u), np.where(c < 0, 2 - v, 3 + u))
+    return p
 
 
 def _from_diamond(p: np.ndarray) -> np.ndarray:
@@ -346,7 +350,8 @@ def _from_diamond(p: np.ndarray) -> np.ndarray:
     x = np.where(p < 1, 1 - p, np.where(p < 2, 1 - p, np.where(p < 3, p - 3, p - 3)))
     y = np.where(p < 1, p, np.where(p < 2, 2 - p, np.where(p < 3, 2 - p, p - 4)))
     v = np.stack([x, y], axis=1)
-    return v / np.linalg.norm(v, axis=1, keepdims=True)
+    unit: np.ndarray = v / np.linalg.norm(v, axis=1, keepdims=True)
+    return unit
 
 
 def _remap_points(table: np.ndarray, mx: np.ndarray, my: np.ndarray) -> np.ndarray:
@@ -383,7 +388,8 @@ def _smooth_table(rng: np.random.Generator, n: int, corr_mm: float) -> np.ndarra
     # draw on a coarse grid (1 sample per mm) and interpolate: cheap and smooth
     n_c = int(np.ceil(n * DZ)) + 2
     coarse = smooth_series(rng, n_c, corr_mm)
-    return np.interp(np.arange(n) * DZ, np.arange(n_c), coarse)
+    table: np.ndarray = np.interp(np.arange(n) * DZ, np.arange(n_c), coarse)
+    return table
 
 
 def _window_min(a: np.ndarray, half: int) -> np.ndarray:

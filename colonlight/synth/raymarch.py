@@ -47,9 +47,8 @@ def march(
         if n_live == 0:
             break
         if n_live < 0.7 * len(act):
-            act, ox, oy, oz, dx, dy, dz, at, a_tin, a_fin = (
-                a[live] for a in (act, ox, oy, oz, dx, dy, dz, at, a_tin, a_fin)
-            )
+            marching: tuple[np.ndarray, ...] = (act, ox, oy, oz, dx, dy, dz, at, a_tin, a_fin)
+            act, ox, oy, oz, dx, dy, dz, at, a_tin, a_fin = (a[live] for a in marching)
             live = np.ones(len(act), bool)
         fz = (oz + at * dz - z0) * inv_dz
         out = (fz < -0.5) | (fz > nz - 1.5) | (at > t_max)
@@ -147,4 +146,5 @@ def _refine(
         hi = np.where(ins, hi, mid)
     known = np.isfinite(f_lo)
     frac = np.where(known, f_lo / np.where(known, f_lo - f_hi, 1.0), 0.5)
-    return lo + np.clip(frac, 0.0, 1.0) * (hi - lo)
+    t: np.ndarray = lo + np.clip(frac, 0.0, 1.0) * (hi - lo)
+    return t

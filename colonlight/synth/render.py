@@ -148,7 +148,7 @@ def sensor(
         v = cv2.GaussianBlur(v, (0, 0), cfg.blur_px)
     if noise is not None:
         v = v + np.sqrt(cfg.shot_noise * np.maximum(v, 0) + cfg.read_noise**2) * noise
-    y = np.power(np.maximum(v, 0), np.float32(1.0 / cfg.camera_gamma))
+    y: np.ndarray = np.power(np.maximum(v, 0), np.float32(1.0 / cfg.camera_gamma))
     if field is not None:
         y *= field[..., None]
     return y
@@ -163,9 +163,11 @@ def response(y: np.ndarray, shoulder: float) -> np.ndarray:
     if shoulder == 0:
         return y
     s = np.float32(shoulder)
-    return y * (1 + s) / (1 + s * np.maximum(y, 0))
+    shaped: np.ndarray = y * (1 + s) / (1 + s * np.maximum(y, 0))
+    return shaped
 
 
 def to_uint8(y: np.ndarray) -> np.ndarray:
     """Quantise a display-domain frame to 8 bits with clipping (what the recorder stores)."""
-    return np.rint(np.clip(y, 0, 1) * 255).astype(np.uint8)
+    u8: np.ndarray = np.rint(np.clip(y, 0, 1) * 255).astype(np.uint8)
+    return u8

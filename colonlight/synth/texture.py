@@ -12,9 +12,11 @@ from __future__ import annotations
 
 import colorsys
 from dataclasses import dataclass
+from typing import Any, cast
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from .config import SynthConfig
 from .noise import periodic_noise
@@ -32,7 +34,7 @@ class WallTexture:
 
     @property
     def n_u(self) -> int:
-        return self.levels[0].shape[1]
+        return int(self.levels[0].shape[1])
 
     @classmethod
     def paint(cls, cfg: SynthConfig, rng: np.random.Generator, arc_lo: float, arc_hi: float) -> WallTexture:
@@ -74,7 +76,7 @@ class WallTexture:
 
         # debris: yellow-brown blobs, less glossy
         if cfg.debris > 0:
-            mask = np.zeros((nv, nu), np.float32)
+            mask: np.ndarray = np.zeros((nv, nu), np.float32)
             area_cm2 = nv * nu * TEXEL_MM**2 / 100.0
             for _ in range(int(rng.poisson(cfg.debris * 0.04 * area_cm2))):
                 c = (int(rng.integers(0, nu)), int(rng.integers(0, nv)))
@@ -113,7 +115,7 @@ class WallTexture:
         u = (theta * (self.n_u / (2 * np.pi))) % self.n_u
         v = (arc - self.v0) / TEXEL_MM
         lam = np.clip(np.log2(np.maximum(footprint_mm / TEXEL_MM, 1e-6)), 0, N_LEVELS - 1)
-        out = None
+        out: np.ndarray | None = None
         for lv, img in enumerate(self.levels):
             w = np.clip(1 - np.abs(lam - lv), 0, 1).astype(np.float32)
             if not np.any(w > 0):
@@ -186,7 +188,7 @@ def _vessels(cfg: SynthConfig, rng: np.random.Generator, nv: int, nu: int) -> tu
     out = []
     for i, lay in enumerate(layers):
         f = lay.astype(np.float32) / 255.0
-        f = cv2.GaussianBlur(f, (0, 0), 0.5 if i == 0 else 1.8)
+        f = cast("npt.NDArray[np.floating[Any]]", cv2.GaussianBlur(f, (0, 0), 0.5 if i == 0 else 1.8))  # float in, out
         if i == 1:
             f *= 1.5
         core = f[:, pad : pad + nu].copy()

@@ -47,7 +47,7 @@ LIGHTING_MODEL = (
 
 def _colonlight_version() -> str:
     try:
-        from .. import __version__  # type: ignore[attr-defined]
+        from .. import __version__
 
         return str(__version__)
     except ImportError:
@@ -243,7 +243,7 @@ def _is_complete(out_dir: Path, cfg: SynthConfig, seed: int, overlay: OverlaySpe
     except (OSError, ValueError):
         return False
     drawn = overlay.to_dict() if overlay is not None and overlay.active else None
-    return (
+    return bool(
         meta.get("seed") == seed
         and meta.get("config") == json.loads(json.dumps(cfg.to_dict()))
         and meta.get("overlay") == drawn

@@ -34,6 +34,7 @@ back through TCP and costs one frame and one answer; one that has read nothing f
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import math
@@ -188,10 +189,8 @@ class StreamSession:
         return message
 
     async def close(self, code: int, reason: str) -> None:
-        try:
+        with contextlib.suppress(asyncio.TimeoutError, WebSocketDisconnect, OSError, RuntimeError):
             await asyncio.wait_for(self.ws.close(code, reason[:120]), self.settings.stream_send_timeout_seconds)
-        except (asyncio.TimeoutError, WebSocketDisconnect, OSError, RuntimeError):
-            pass
 
     # ------------------------------------------------------------------------------------------ protocol
 

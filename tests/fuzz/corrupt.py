@@ -13,11 +13,11 @@ order (derandomized, no example database), so that a CI failure reproduces anywh
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Union
 
 from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
@@ -120,7 +120,7 @@ class Splice:
         return donor[: self.head % len(donor)] + (data[self.body % len(data) :] if data else b"")
 
 
-ByteDamage = Union[Flip, Cut, Duplicate, Drop, Splice]
+ByteDamage = Flip | Cut | Duplicate | Drop | Splice
 
 
 @dataclass(frozen=True)
@@ -154,10 +154,9 @@ class Packets:
                     p.time_base = packet.time_base
                     p.is_keyframe = packet.is_keyframe
                     p.stream = streams[packet.stream.index]
-                    try:
+                    # the muxer may refuse one (timestamps): the file goes on without it
+                    with contextlib.suppress(av.error.FFmpegError):
                         out.mux(p)
-                    except av.error.FFmpegError:
-                        pass  # the muxer refused this one (timestamps): the file goes on without it
 
 
 @dataclass(frozen=True)
