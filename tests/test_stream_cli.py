@@ -1,6 +1,7 @@
 """`colonlight stream` end to end, on real streams served on loopback by the ffmpeg binary of imageio-ffmpeg: MPEG-TS
-over UDP and over HTTP (ffmpeg's own `-listen 1` server), a pipe into standard input, a source that stops and
-comes back, a consumer that reads slowly; the v4l2 path as far as a machine without a camera allows.
+over UDP and over HTTP (ffmpeg's own `-listen 1` server), H.264 over RTSP (ffmpeg publishing to colonlight), a pipe
+into standard input, sources that stop and come back, a consumer that reads slowly; the v4l2 path as far as a
+machine without a camera allows.
 
 Sources are clips of index frames (tests/media.py), so every output frame says which source frame it is."""
 
@@ -228,6 +229,94 @@ def test_http_source_that_stops_and_comes_back_reconnects_with_state_kept(
     assert summary["connections"] == 2 and summary["frames_out"] == len(records)
     assert len(list((out / "frames").iterdir())) == 20  # --keep 20: the newest 20 frames
     assert sorted(_frames_index(out)) == [r["index"] for r in records[-20:]]
+
+
+def _rtsp_publish(clip: Path, url: str, deadline_s: float = 60.0) -> None:
+    """ffmpeg publishing the clip in real time to an RTSP server (ANNOUNCE/RECORD), as an encoder pushes its
+    stream: tried again while the server is not listening yet (connection refused), within ``deadline_s``."""
+    deadline = time.monotonic() + deadline_s
+    while True:
+        sender = _ffmpeg("-re", "-i", str(clip), "-c", "copy", "-f", "rtsp", url, stderr=subprocess.PIPE)
+        _, err = sender.communicate(timeout=deadline_s)
+        if sender.returncode == 0:
+            return
+        assert b"Connection refused" in err and time.monotonic() < deadline, err.decode(errors="replace")
+        time.sleep(0.3)
+
+
+def _rtsp_listener(url: str, out: Path, weights: Path, *extra: str) -> tuple[subprocess.Popen[bytes], Stderr]:
+    """colonlight as the RTSP server an encoder publishes to (``rtsp_flags=listen``), over FFmpeg's RTSP demuxer."""
+    proc = subprocess.Popen(
+        _colonlight(url, "--input-option", "rtsp_flags=listen", "-o", str(out), "--weights", str(weights), *extra),
+        env=_env(),
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+    )
+    err = Stderr(proc)
+    err.wait_for("waiting for frames")
+    return proc, err
+
+
+def test_rtsp_stream_published_by_ffmpeg(tmp_path: Path, live_clip: Path, random_weights: Path) -> None:
+    """RTSP end to end: ffmpeg pushes H.264 over RTSP (interleaved in TCP, colonlight's default) on loopback;
+    frames arrive at 18 fps and the summary is printed. (FFmpeg has no RTSP server for readers, so the ffmpeg
+    binary cannot serve a stream for `colonlight stream rtsp://camera/...` to pull; that path uses the same
+    demuxer and decoder, with the roles of the two ends exchanged.)"""
+    port = _port()
+    out, url = tmp_path / "out", f"rtsp://127.0.0.1:{port}/live"
+    proc, err = _rtsp_listener(url, out, random_weights, "--timeout", "20")
+    try:
+        _rtsp_publish(live_clip, url)
+        assert proc.wait(60) == 0, err.done()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = err.done()
+    assert "Traceback" not in text and "ended: source ended" in text and "frames in" in text and "p95" in text
+    records = _log(out)
+    _check_log(records)
+    summary = _summary(out)
+    assert summary["frames_in"] >= 45 and summary["connections"] == 1  # 54 at 18 fps from 3 s
+    assert summary["frames_out"] == len(records) == summary["frames_in"] - summary["frames_dropped"] >= 10
+    assert sum(1 for r in records if r.get("seed")) == 2
+    assert sorted(_frames_index(out)) == [r["index"] for r in records]
+    found = [read_index(f) for f in _frames_by_time(out)]
+    assert found == sorted(found) and found[-1] >= 80  # source frames in order, up to the end of the clip
+
+
+def _frames_by_time(out: Path) -> list[np.ndarray]:
+    import cv2
+
+    return [cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) for p in sorted((out / "frames").iterdir())]
+
+
+def test_rtsp_source_that_stops_and_comes_back_reconnects_with_state_kept(
+    tmp_path: Path, live_clip: Path, random_weights: Path
+) -> None:
+    port = _port()
+    out, url = tmp_path / "out", f"rtsp://127.0.0.1:{port}/live"
+    proc, err = _rtsp_listener(url, out, random_weights, "--reconnect", "--timeout", "20")
+    try:
+        _rtsp_publish(live_clip, url)  # the encoder sends 3 s and stops (TEARDOWN)
+        err.wait_for("reconnecting in")
+        time.sleep(1.0)
+        _rtsp_publish(live_clip, url)  # and comes back: colonlight listens again
+        err.wait_for("reconnected (connection 2)")
+        err.wait_for("reconnecting in", count=2)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(30) == 0, err.done()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = err.done()
+    assert "Traceback" not in text and "ended: stopped (Ctrl-C)" in text
+    records = _log(out)
+    _check_log(records)
+    second = [r for r in records if r.get("connection") == 2]
+    assert len(second) >= 10 and len(records) - len(second) >= 10
+    assert sum(1 for r in records if r.get("seed")) == 2  # one recurrent state across the reconnect
+    summary = _summary(out)
+    assert summary["connections"] == 2 and summary["frames_out"] == len(records)
 
 
 # ---------------------------------------------------------------------------------------------- pipes

@@ -7,6 +7,7 @@ Matroska or raw H.264 on a pipe and V4L2 devices all arrive as the same decoded 
 
 from __future__ import annotations
 
+import math
 import os
 import stat
 from collections.abc import Mapping
@@ -125,13 +126,26 @@ def _cause(exc: BaseException) -> str:
     return " ".join(str(text).split())
 
 
+def listen_options(spec: SourceSpec, timeout_s: float) -> dict[str, str]:
+    """``spec``'s FFmpeg options, with a bound on the wait for a publisher when colonlight is the RTSP server
+    (``--input-option rtsp_flags=listen``: an encoder pushes its stream to us with ANNOUNCE/RECORD).
+
+    FFmpeg's own default there (wait forever, ``listen_timeout`` -1) fails at once in FFmpeg 8 ("Numerical result
+    out of range"); the wait is the source's ``--timeout`` instead, so ``--reconnect`` listens again after it.
+    """
+    options = dict(spec.options)
+    if _scheme(spec.url) in ("rtsp", "rtsps") and "listen" in options.get("rtsp_flags", "").split("+"):
+        options.setdefault("listen_timeout", str(max(1, math.ceil(timeout_s))))
+    return options
+
+
 def open_source(spec: SourceSpec, timeout_s: float) -> tuple[Any, Any]:
     """Open ``spec`` and pick its video stream; one InputError line on failure.
 
     ``timeout_s`` bounds opening (but for standard input) and every later read: a silent network source raises
     instead of blocking.
     """
-    kwargs: dict[str, Any] = {"mode": "r", "metadata_errors": "replace", "options": dict(spec.options)}
+    kwargs: dict[str, Any] = {"mode": "r", "metadata_errors": "replace", "options": listen_options(spec, timeout_s)}
     if spec.format:
         kwargs["format"] = spec.format
     if spec.kind != "file":  # standard input may wait for its producer to start: only reads time out
