@@ -203,7 +203,10 @@ def _row(label: str, result: dict) -> list[object]:
     tenth = values[len(values) // 10] if len(values) else float("nan")
     half = len(values) // 2
     slope = np.polyfit(times[half:], values[half:], 1)[0] * 600 if len(values) - half >= 3 else float("nan")
-    p = lambda a, q: f"{np.percentile(a, q):.1f}" if len(a) else "-"
+
+    def p(a: np.ndarray, q: float) -> str:
+        return f"{np.percentile(a, q):.1f}" if len(a) else "-"
+
     cpu = result["cpu"]
     # CPU share while streaming (between the first and the last sample: the model load before the feed is excluded)
     share = (
@@ -316,7 +319,8 @@ def main(argv: list[str] | None = None) -> str:
             rows.append(_row(name, result))
     return "\n".join(
         [
-            f"## colonlight stream: {width}x{height} H.264 at {SRC_FPS} fps played live into `colonlight stream -` at 18 fps",
+            f"## colonlight stream: {width}x{height} H.264 at {SRC_FPS} fps played live into `colonlight stream -` "
+            "at 18 fps",
             "",
             markdown_table(
                 [
