@@ -10,7 +10,7 @@ VENV       ?= .venv
 TORCH_SPEC ?= torch==2.13.0
 BIN        := $(VENV)/bin
 
-.PHONY: demo test lint install install-test browser benchmark figures clean
+.PHONY: demo test lint install install-test browser cpp-host benchmark figures clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -27,12 +27,20 @@ install: $(BIN)/python
 install-test: $(BIN)/python browser
 	$(BIN)/pip install --quiet $(TORCH_SPEC)
 	$(BIN)/pip install --quiet -e ".[test]"
+	@$(MAKE) --no-print-directory cpp-host
 
 # The web page's test drives Debian's chromium; installed when possible (root with apt), else that test skips.
 browser:
 	@if [ ! -x /usr/bin/chromium ] && [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
 		(apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) \
 		|| echo "note: chromium could not be installed; the browser test will skip"; fi
+
+# The C++ host's test builds examples/cpp_host: g++, OpenCV's imgproc and nlohmann-json (Debian's packages, when
+# root with apt) and ONNX Runtime's headers (fetched by its Makefile); what cannot be had makes that test skip.
+cpp-host:
+	@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then $(MAKE) -s -C examples/cpp_host deps \
+		|| echo "note: the C++ host's dependencies could not be installed; its test will skip"; \
+	else $(MAKE) -s -C examples/cpp_host headers || echo "note: no ONNX Runtime headers; the C++ host's test will skip"; fi
 
 demo: install
 	$(BIN)/colonlight demo

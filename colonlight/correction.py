@@ -43,12 +43,17 @@ def gain_gamma_values(z0: float, z1: float) -> tuple[float, float]:
     return math.exp(LOG_GAIN_SPAN * math.tanh(z1)), math.exp(LOG_GAMMA_SPAN * math.tanh(z0))
 
 
+def per_frame(value: Tensor, frames: Tensor) -> Tensor:
+    """``value`` ``(...)``, one number per frame, with trailing axes added so that it broadcasts over ``frames``
+    ``(..., 3, H, W)`` (or over any array with more axes than it, such as a 1-D table of levels)."""
+    while value.ndim < frames.ndim:
+        value = value.unsqueeze(-1)
+    return value
+
+
 def apply_gain_gamma(frames: Tensor, gain: Tensor, gamma: Tensor, eps: float = 1e-6) -> Tensor:
     """Differentiable ``min(1, gain * I ** gamma)``; ``gain``/``gamma`` broadcast over ``(..., 3, H, W)``."""
-    while gamma.ndim < frames.ndim:
-        gamma = gamma.unsqueeze(-1)
-        gain = gain.unsqueeze(-1)
-    return (gain * frames.clamp_min(eps) ** gamma).clamp_max(1.0)
+    return (per_frame(gain, frames) * frames.clamp_min(eps) ** per_frame(gamma, frames)).clamp_max(1.0)
 
 
 #: Segments of the curve head's tone curve, and their end points on [0, 1]: spaced on a square-root scale so
@@ -71,10 +76,7 @@ def apply_curve(frames: Tensor, slopes: Tensor) -> Tensor:
     out = torch.zeros_like(frames)
     for k in range(CURVE_SEGMENTS):
         lo, width = CURVE_KNOTS[k], CURVE_KNOTS[k + 1] - CURVE_KNOTS[k]
-        slope = slopes[..., k]
-        while slope.ndim < frames.ndim:
-            slope = slope.unsqueeze(-1)
-        out = out + slope * (frames - lo).clamp(0.0, width)
+        out = out + per_frame(slopes[..., k], frames) * (frames - lo).clamp(0.0, width)
     return out.clamp_max(1.0)
 
 

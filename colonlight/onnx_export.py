@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import platform
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -58,14 +59,16 @@ def sidecar_record(
     card = weights.card
     seeds = weights.seed_frames if weights.seed_frames is not None else SEED_FRAMES
     head = getattr(weights.net, "head", "gamma") if sig.head_names == ("z",) else "gamma"
-    outputs = [{**d, "shape": list(shape), "dtype": "float32"} for d, shape in zip(described, sig.head_shapes)] + [
+    outputs = [
+        {**d, "shape": list(shape), "dtype": "float32"} for d, shape in zip(described, sig.head_shapes, strict=True)
+    ] + [
         {
             "name": f"{n}_out",
             "shape": list(s),
             "dtype": "float32",
             "meaning": f"the new state: feed it as '{n}' with the next frame",
         }
-        for n, s in zip(sig.state_names, sig.state_shapes)
+        for n, s in zip(sig.state_names, sig.state_shapes, strict=True)
     ]
     return {
         "format": SIDECAR_FORMAT,
@@ -99,7 +102,7 @@ def sidecar_record(
                     "dtype": "float32",
                     "initial": "zeros at the start of every clip or stream, then the previous step's output",
                 }
-                for n, s in zip(sig.state_names, sig.state_shapes)
+                for n, s in zip(sig.state_names, sig.state_shapes, strict=True)
             ),
         ],
         "outputs": outputs,
@@ -110,11 +113,12 @@ def sidecar_record(
         },
         "gamma": card.get("gamma") or _default_gamma_rule(sig, head),
         "lut": {
-            "build": f"lut[v] = round(255 * {LUT_FORMULA[head]}) for v = 0..255, in double precision, rounding "
-            "half to even (std::nearbyint in the default rounding mode), as uint8",
+            "build": f"lut[v] = round(255 * {LUT_FORMULA[head].entry}) for v = 0..255, in double precision, "
+            "rounding half to even (std::nearbyint in the default rounding mode), as uint8",
             "apply": "out = lut[in] for every sample of every channel of the full-resolution uint8 frame "
-            "(cv::LUT); out = in ^ gamma on [0, 1] values, gamma < 1 brightens",
+            f"(cv::LUT); that is {LUT_FORMULA[head].values} on [0, 1] values",
         },
+        "correction": correction_parameters(head) if sig.head_names in (("a",), ("z",)) else None,
         "check": {
             "onnxruntime_vs_torch_max_abs_diff": check_max_diff,
             "tolerance": EXPORT_TOLERANCE,
@@ -123,12 +127,36 @@ def sidecar_record(
     }
 
 
-#: Head -> the value of one table entry, in the words of the sidecar's ``lut.build``.
+@dataclass(frozen=True)
+class LutFormula:
+    """One head's correction in the sidecar's words: a table entry for level ``v``, and the same on values."""
+
+    entry: str
+    values: str
+
+
+#: Head -> its table entry and what applying the table does (the sidecar's ``lut.build`` and ``lut.apply``).
 LUT_FORMULA = {
-    "gamma": "(v / 255) ^ gamma",
-    "gain-gamma": "min(1, gain * (v / 255) ^ gamma)",
-    "curve": "min(1, f(v / 255)), f the curve of 'gamma'",
+    "gamma": LutFormula("(v / 255) ^ gamma", "out = in ^ gamma (gamma < 1 brightens)"),
+    "gain-gamma": LutFormula("min(1, gain * (v / 255) ^ gamma)", "out = min(1, gain * in ^ gamma)"),
+    "curve": LutFormula("min(1, f(v / 255)), f the curve of 'gamma'", "out = min(1, f(in)), f the curve of 'gamma'"),
 }
+
+
+def correction_parameters(head: str) -> dict[str, Any]:
+    """The numbers of the head's correction rule (``gamma``'s formula) as values, for a host that reads them
+    instead of parsing text (``examples/cpp_host``)."""
+    record: dict[str, Any] = {"head": head, "gamma_range": [GAMMA_MIN, GAMMA_MAX]}
+    if head == "gain-gamma":
+        record.update(log_gamma_span=LOG_GAMMA_SPAN, log_gain_span=LOG_GAIN_SPAN, gain_range=[GAIN_MIN, GAIN_MAX])
+    elif head == "curve":
+        record.update(
+            knots=list(CURVE_KNOTS),
+            slope_offset=SLOPE_OFFSET,
+            slope_max=CURVE_SLOPE_MAX,
+            summary_at=CURVE_SUMMARY_AT,
+        )
+    return record
 
 
 def _default_gamma_rule(sig: StepSignature, head: str) -> dict[str, Any]:

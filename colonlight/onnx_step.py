@@ -79,7 +79,7 @@ class StepGraph(nn.Module):
 
     def __init__(self, net: nn.Module) -> None:
         super().__init__()
-        self.net = net
+        self.net: Any = net  # any network with a ``step`` (not only GammaNet's signature)
 
     def forward(self, frame: Tensor, *state: Tensor) -> tuple[Tensor, ...]:
         head, new_state = _split_step(self.net.step(frame, tuple(state)))
@@ -131,7 +131,7 @@ def describe_outputs(
     if len(from_card) == n and all(_NAME.match(str(d.get("name", ""))) for d in from_card):
         return from_card
     if all(name is not None and _NAME.match(name) for name in dict_names):
-        return [{"name": name, "meaning": "not described by the weights' card"} for name in dict_names]  # type: ignore[misc]
+        return [{"name": name, "meaning": "not described by the weights' card"} for name in dict_names]
     if n == 1:
         return [dict(HEAD_OUTPUT.get(head or "gamma", DEFAULT_OUTPUT))]
     return [{"name": f"out{i}", "meaning": "not described by the weights' card"} for i in range(n)]
@@ -139,7 +139,7 @@ def describe_outputs(
 
 def step_signature(weights: LoadedWeights, size: int) -> tuple[StepSignature, list[dict[str, Any]]]:
     """Run one step on a zero frame from the zero state to learn the state's and the head's shapes."""
-    net = weights.net.eval()
+    net: Any = weights.net.eval()  # any network with a ``step``: its state's length is learnt here
     frame = torch.zeros(1, 3, size, size)
     with torch.inference_mode():
         _, state = _split_step(net.step(frame, None))
@@ -173,7 +173,7 @@ def _quiet_exporter() -> Iterator[None]:
             warnings.simplefilter("ignore")
             yield
     finally:
-        for lg, level in zip(loggers, levels):
+        for lg, level in zip(loggers, levels, strict=True):
             lg.setLevel(level)
 
 
@@ -209,7 +209,7 @@ def export_model_bytes(weights: LoadedWeights, size: int) -> tuple[bytes, StepSi
 def cpu_session(model: bytes | str | Path, threads: int = 1) -> Any:
     """An ONNX Runtime CPU session as colonlight runs the step: ``threads`` intra-op threads, one inter-op thread,
     sequential execution and no spinning (a spinning idle thread would take the core decoding and encoding need)."""
-    import onnxruntime as ort
+    import onnxruntime as ort  # type: ignore[import-untyped]
 
     so = ort.SessionOptions()
     so.intra_op_num_threads = threads
@@ -226,7 +226,7 @@ def cpu_session(model: bytes | str | Path, threads: int = 1) -> Any:
 def compare_with_torch(weights: LoadedWeights, session: Any, sig: StepSignature, frames: Sequence[np.ndarray]) -> float:
     """Run torch and the ONNX session side by side over ``frames`` (each ``(1, 3, S, S)`` float32 in [0, 1]),
     each carrying its own state from zero; return the largest absolute difference in any head output."""
-    net = weights.net.cpu().eval()
+    net: Any = weights.net.cpu().eval()
     state: tuple[Tensor, ...] | None = None
     onnx_state = sig.zero_state()
     worst = 0.0
@@ -235,8 +235,8 @@ def compare_with_torch(weights: LoadedWeights, session: Any, sig: StepSignature,
         with torch.inference_mode():
             head, state = _split_step(net.step(torch.from_numpy(frame), state))
         torch_out = [t.numpy() for t in _flatten_head(head)[1]]
-        outs = session.run(None, {"frame": frame, **dict(zip(sig.state_names, onnx_state))})
+        outs = session.run(None, {"frame": frame, **dict(zip(sig.state_names, onnx_state, strict=True))})
         onnx_state = list(outs[n_head:])
-        for ours, theirs in zip(torch_out, outs[:n_head]):
+        for ours, theirs in zip(torch_out, outs[:n_head], strict=True):
             worst = max(worst, float(np.max(np.abs(ours.astype(np.float64) - theirs.astype(np.float64)))))
     return worst

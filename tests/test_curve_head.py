@@ -1,5 +1,5 @@
 """The ``curve`` head: a monotone tone curve per frame, the same in training (torch), inference (a LUT) and
-export (ONNX + the sidecar's formula)."""
+export (its ONNX test is in test_onnx_export.py, one test for the heads with raw outputs)."""
 
 from __future__ import annotations
 
@@ -173,34 +173,3 @@ def test_training_with_the_curve_head_and_the_temporal_term_learns_and_is_record
     assert res.card["head"] == "curve" and "monotone tone curve" in res.card["architecture"]
     assert res.history[-1].train_loss < res.history[0].train_loss
     assert load_weights(res.weights).net.out_linear.out_features == CURVE_SEGMENTS
-
-
-def test_the_curve_head_exports_as_z_with_its_formula_and_runs_on_onnxruntime(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    pytest.importorskip("onnxruntime", reason="the export extra (onnxruntime) is not installed")
-    pytest.importorskip("onnxscript", reason="the export extra (onnxscript) is not installed")
-    from colonlight.checkpoint import LoadedWeights
-    from colonlight.onnx_export import export_onnx
-
-    monkeypatch.setenv("COLONLIGHT_CACHE_DIR", str(tmp_path / "cache"))
-    torch.manual_seed(2)
-    net = GammaNet(head="curve").eval()
-    with torch.no_grad():
-        net.out_linear.weight.normal_(0.0, 0.5)  # away from the identity start, so the outputs move
-    weights = LoadedWeights(
-        net=net, name="cv", sha256="2" * 64, path=tmp_path / "cv.safetensors", card={"input_size": 32, "seed_frames": 0}
-    )
-    record = export_onnx(weights, tmp_path / "cv.onnx", size=32)
-    assert [o["name"] for o in record["outputs"]] == ["z", "h_out", "c_out"]
-    assert record["outputs"][0]["shape"] == [1, CURVE_SEGMENTS]
-    assert record["gamma"]["from_output"] == "z" and record["gamma"]["knots"] == list(CURVE_KNOTS)
-    assert "f(v / 255)" in record["lut"]["build"]
-    rng = np.random.default_rng(4)
-    frames = [(rng.random((40, 40, 3)) * 255).astype(np.uint8) for _ in range(6)]
-    torch_stream = RecurrentGammaMethod(weights=weights, device="cpu").stream()
-    onnx_stream = RecurrentGammaMethod(weights=weights, device="cpu", runtime="onnxruntime").stream()
-    for f in frames:
-        ours, theirs = torch_stream.push(f)[0], onnx_stream.push(f)[0]
-        assert np.max(np.abs(np.array(ours.info["z"]) - np.array(theirs.info["z"]))) <= 1e-5
-        assert np.max(np.abs(ours.frame.astype(int) - theirs.frame.astype(int))) <= 1

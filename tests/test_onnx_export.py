@@ -19,7 +19,16 @@ pytest.importorskip("onnxscript", reason="the export extra (onnxscript) is not i
 from colonlight_cli.main import app  # noqa: E402
 
 from colonlight.checkpoint import LoadedWeights, load_weights  # noqa: E402
-from colonlight.methods.rnn import GAMMA_MAX, GAMMA_MIN, SEED_FRAMES, RecurrentGammaMethod, network_input  # noqa: E402
+from colonlight.correction import CURVE_KNOTS, CURVE_SEGMENTS  # noqa: E402
+from colonlight.methods.rnn import (  # noqa: E402
+    GAIN_MAX,
+    GAIN_MIN,
+    GAMMA_MAX,
+    GAMMA_MIN,
+    SEED_FRAMES,
+    RecurrentGammaMethod,
+    network_input,
+)
 from colonlight.model import GammaNet, State  # noqa: E402
 from colonlight.onnx_export import export_onnx, read_sidecar, sidecar_path  # noqa: E402
 from colonlight.onnx_step import cpu_session  # noqa: E402
@@ -118,6 +127,7 @@ def test_sidecar_says_what_a_host_needs(shipped_onnx: Path) -> None:
     if shipped.head == "gamma":
         assert side["gamma"]["formula"] == "gamma = 1 / a"
     assert "lut[v]" in side["lut"]["build"] and "LUT" in side["lut"]["apply"]
+    assert side["correction"]["head"] == shipped.head
     assert side["check"]["onnxruntime_vs_torch_max_abs_diff"] <= TOLERANCE
     session = cpu_session(out)
     assert [i.name for i in session.get_inputs()] == ["frame", "h", "c"]
@@ -151,6 +161,7 @@ def test_a_head_with_two_outputs_exports_unchanged_and_is_named_by_the_card(tmp_
     assert [o["name"] for o in record["outputs"]] == ["gain", "gamma", "h_out", "c_out"]
     assert record["outputs"][0]["meaning"] == "multiply the frame by it"
     assert "note" in record["gamma"]  # no output 'a': the sidecar does not claim colonlight's gamma rule
+    assert record["correction"] is None
     session = cpu_session(tmp_path / "gg.onnx")
     rng = np.random.default_rng(0)
     h = c = np.zeros((1, 32, 24, 24), np.float32)
@@ -174,21 +185,36 @@ def test_usage_and_input_errors_are_one_line(tmp_path: Path) -> None:
     assert not (tmp_path / "y.onnx").exists() and not sidecar_path(tmp_path / "y.onnx").exists()
 
 
-def test_the_gain_gamma_head_exports_as_z_with_its_correction_and_runs_on_onnxruntime(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+@pytest.mark.parametrize(
+    ("head", "n_outputs", "build", "apply"),
+    [
+        ("gain-gamma", 2, "min(1, gain * (v / 255) ^ gamma)", "out = min(1, gain * in ^ gamma)"),
+        ("curve", CURVE_SEGMENTS, "min(1, f(v / 255))", "out = min(1, f(in))"),
+    ],
+)
+def test_a_head_with_raw_outputs_exports_as_z_with_its_correction_and_runs_on_onnxruntime(
+    head: str, n_outputs: int, build: str, apply: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    """The gain-gamma and curve heads (random output layers, so the outputs move): one output ``z``, the sidecar's
+    rule, table and correction numbers for that head, and the rnn method on ONNX Runtime matching torch."""
     monkeypatch.setenv("COLONLIGHT_CACHE_DIR", str(tmp_path / "cache"))
     torch.manual_seed(2)
-    net = GammaNet(head="gain-gamma").eval()
+    net = GammaNet(head=head).eval()
     with torch.no_grad():
         net.out_linear.weight.normal_(0.0, 0.5)  # away from the identity start, so the outputs move
     weights = LoadedWeights(
-        net=net, name="gg", sha256="1" * 64, path=tmp_path / "gg.safetensors", card={"input_size": 32, "seed_frames": 0}
+        net=net, name=head, sha256="1" * 64, path=tmp_path / "w.safetensors", card={"input_size": 32, "seed_frames": 0}
     )
-    record = export_onnx(weights, tmp_path / "gg.onnx", size=32)
-    assert [o["name"] for o in record["outputs"]] == ["z", "h_out", "c_out"] and record["outputs"][0]["shape"] == [1, 2]
-    assert record["gamma"]["from_output"] == "z" and "gain" in record["gamma"]["formula"]
-    assert record["seed_frames"]["count"] == 0 and "min(1, gain" in record["lut"]["build"]
+    record = export_onnx(weights, tmp_path / "w.onnx", size=32)
+    assert [o["name"] for o in record["outputs"]] == ["z", "h_out", "c_out"]
+    assert record["outputs"][0]["shape"] == [1, n_outputs] and record["seed_frames"]["count"] == 0
+    assert record["gamma"]["from_output"] == "z"
+    assert build in record["lut"]["build"] and apply in record["lut"]["apply"] and "^ gamma on" not in apply
+    assert record["correction"]["head"] == head and record["correction"]["gamma_range"] == [GAMMA_MIN, GAMMA_MAX]
+    if head == "curve":
+        assert record["gamma"]["knots"] == record["correction"]["knots"] == list(CURVE_KNOTS)
+    else:
+        assert "gain" in record["gamma"]["formula"] and record["correction"]["gain_range"] == [GAIN_MIN, GAIN_MAX]
     rng = np.random.default_rng(4)
     frames = [(rng.random((40, 40, 3)) * 255).astype(np.uint8) for _ in range(6)]
     torch_stream = RecurrentGammaMethod(weights=weights, device="cpu").stream()
@@ -196,4 +222,7 @@ def test_the_gain_gamma_head_exports_as_z_with_its_correction_and_runs_on_onnxru
     for f in frames:
         ours, theirs = torch_stream.push(f)[0], onnx_stream.push(f)[0]
         assert np.max(np.abs(np.array(ours.info["z"]) - np.array(theirs.info["z"]))) <= TOLERANCE
-        assert abs(ours.gamma - theirs.gamma) <= 1e-4 and abs(ours.info["gain"] - theirs.info["gain"]) <= 1e-4
+        assert abs(ours.gamma - theirs.gamma) <= 1e-4
+        assert np.max(np.abs(ours.frame.astype(int) - theirs.frame.astype(int))) <= 1
+        if head == "gain-gamma":
+            assert abs(ours.info["gain"] - theirs.info["gain"]) <= 1e-4

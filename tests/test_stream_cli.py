@@ -1,6 +1,7 @@
 """`colonlight stream` end to end, on real streams served on loopback by the ffmpeg binary of imageio-ffmpeg: MPEG-TS
-over UDP and over HTTP (ffmpeg's own `-listen 1` server), a pipe into standard input, a source that stops and
-comes back, a consumer that reads slowly; the v4l2 path as far as a machine without a camera allows.
+over UDP and over HTTP (ffmpeg's own `-listen 1` server), H.264 over RTSP (ffmpeg publishing to colonlight), a pipe
+into standard input, sources that stop and come back, a consumer that reads slowly; the v4l2 path as far as a
+machine without a camera allows.
 
 Sources are clips of index frames (tests/media.py), so every output frame says which source frame it is."""
 
@@ -228,6 +229,95 @@ def test_http_source_that_stops_and_comes_back_reconnects_with_state_kept(
     assert summary["connections"] == 2 and summary["frames_out"] == len(records)
     assert len(list((out / "frames").iterdir())) == 20  # --keep 20: the newest 20 frames
     assert sorted(_frames_index(out)) == [r["index"] for r in records[-20:]]
+
+
+def _rtsp_publish(clip: Path, url: str, deadline_s: float = 60.0) -> None:
+    """ffmpeg publishing the clip in real time to an RTSP server (ANNOUNCE/RECORD), as an encoder pushes its
+    stream: tried again while the server is not listening yet (connection refused), within ``deadline_s``."""
+    deadline = time.monotonic() + deadline_s
+    while True:
+        sender = _ffmpeg("-re", "-i", str(clip), "-c", "copy", "-f", "rtsp", url, stderr=subprocess.PIPE)
+        _, err = sender.communicate(timeout=deadline_s)
+        if sender.returncode == 0:
+            return
+        assert b"Connection refused" in err and time.monotonic() < deadline, err.decode(errors="replace")
+        time.sleep(0.3)
+
+
+def _rtsp_listener(url: str, out: Path, weights: Path, *extra: str) -> tuple[subprocess.Popen[bytes], Stderr]:
+    """colonlight as the RTSP server an encoder publishes to (``rtsp_flags=listen``), over FFmpeg's RTSP demuxer."""
+    proc = subprocess.Popen(
+        _colonlight(url, "--input-option", "rtsp_flags=listen", "-o", str(out), "--weights", str(weights), *extra),
+        env=_env(),
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+    )
+    err = Stderr(proc)
+    err.wait_for("waiting for frames")
+    return proc, err
+
+
+def test_rtsp_stream_published_by_ffmpeg(
+    tmp_path: Path, live_clip: Path, fps_choice: list[int], random_weights: Path
+) -> None:
+    """RTSP end to end: ffmpeg pushes H.264 over RTSP (interleaved in TCP, colonlight's default) on loopback;
+    frames arrive at 18 fps and the summary is printed. (FFmpeg has no RTSP server for readers, so the ffmpeg
+    binary cannot serve a stream for `colonlight stream rtsp://camera/...` to pull; that path uses the same
+    demuxer and decoder, with the roles of the two ends exchanged.)"""
+    port = _port()
+    out, url = tmp_path / "out", f"rtsp://127.0.0.1:{port}/live"
+    proc, err = _rtsp_listener(url, out, random_weights, "--timeout", "60", "--drop", "never")
+    try:
+        _rtsp_publish(live_clip, url)
+        assert proc.wait(60) == 0, err.done()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = err.done()
+    assert "Traceback" not in text and "ended: source ended" in text and "frames in" in text and "p95" in text
+    records = _log(out)
+    _check_log(records)
+    summary = _summary(out)
+    # RTSP over TCP loses nothing and `--drop never` waits for the model: every frame of 3 s at 18 fps, whatever
+    # the machine's load, each the source frame FFmpeg's fps filter picks up to the phase of the RTP clock (RTSP
+    # timestamps do not start at the file's zero: one source frame either way)
+    assert summary["connections"] == 1 and summary["frames_dropped"] == 0
+    assert summary["frames_in"] == summary["frames_out"] == len(records) == len(fps_choice) == 54
+    assert sum(1 for r in records if r.get("seed")) == 2
+    found = _frames_index(out)
+    assert sorted(found) == list(range(54)) and all(found[i] < found[i + 1] for i in range(53))
+    assert all(abs(found[i] - fps_choice[i]) <= 1 for i in range(54)) and found[53] >= 87
+
+
+def test_rtsp_source_that_stops_and_comes_back_reconnects_with_state_kept(
+    tmp_path: Path, live_clip: Path, random_weights: Path
+) -> None:
+    port = _port()
+    out, url = tmp_path / "out", f"rtsp://127.0.0.1:{port}/live"
+    proc, err = _rtsp_listener(url, out, random_weights, "--reconnect", "--timeout", "90", "--drop", "never")
+    try:
+        _rtsp_publish(live_clip, url)  # the encoder sends 3 s and stops (TEARDOWN)
+        err.wait_for("reconnecting in")
+        time.sleep(1.0)
+        _rtsp_publish(live_clip, url)  # and comes back: colonlight listens again
+        err.wait_for("reconnected (connection 2)")
+        err.wait_for("reconnecting in", count=2)
+        time.sleep(2.0)  # listening for a third publisher, for up to --timeout (90 s) ...
+        proc.send_signal(signal.SIGINT)  # ... which Ctrl-C ends at once
+        assert proc.wait(45) == 0, err.done()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = err.done()
+    assert "Traceback" not in text and "ended: stopped (Ctrl-C)" in text
+    records = _log(out)
+    _check_log(records)
+    second = [r for r in records if r.get("connection") == 2]
+    assert len(second) == len(records) - len(second) == 54  # every frame of both (TCP, --drop never)
+    assert sum(1 for r in records if r.get("seed")) == 2  # one recurrent state across the reconnect
+    assert second[0]["source_time_s"] > records[53]["source_time_s"] + 1.0  # the gap between the publishers
+    summary = _summary(out)
+    assert summary["connections"] == 2 and summary["frames_out"] == len(records)
 
 
 # ---------------------------------------------------------------------------------------------- pipes

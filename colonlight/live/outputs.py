@@ -8,6 +8,7 @@ line per frame and flushes it.
 
 from __future__ import annotations
 
+import contextlib
 import json
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -80,10 +81,8 @@ class Y4mPipe:
             raise PipeClosed("the program reading --pipe closed it") from exc
 
     def close(self) -> None:
-        try:
+        with contextlib.suppress(BrokenPipeError, ConnectionResetError, ValueError):
             self.fh.flush()
-        except (BrokenPipeError, ConnectionResetError, ValueError):
-            pass
 
 
 class MpegTsPipe:
@@ -119,7 +118,7 @@ class MpegTsPipe:
         h, w = frame.shape[:2]
         if self._container is None:
             self._open(w, h)
-        elif self.size != (w, h):
+        elif self.size is not None and self.size != (w, h):
             raise InputError(
                 f"frame {index} is {w}x{h} but the MPEG-TS stream started at {self.size[0]}x{self.size[1]}"
             )

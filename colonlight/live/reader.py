@@ -105,7 +105,7 @@ class StreamReader:
         self.notify(f"{self.spec.text}: waiting for frames")
         while not self.stop.is_set():
             try:
-                container, stream = open_source(self.spec, self.timeout_s)
+                container, stream = open_source(self.spec, self.timeout_s, self.stop)
             except InputError as exc:
                 if not self.reconnect:
                     raise

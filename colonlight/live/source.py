@@ -7,8 +7,11 @@ Matroska or raw H.264 on a pipe and V4L2 devices all arrive as the same decoded 
 
 from __future__ import annotations
 
+import math
 import os
 import stat
+import threading
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -125,19 +128,54 @@ def _cause(exc: BaseException) -> str:
     return " ".join(str(text).split())
 
 
-def open_source(spec: SourceSpec, timeout_s: float) -> tuple[Any, Any]:
-    """Open ``spec`` and pick its video stream; one InputError line on failure.
+#: How long one wait for an RTSP publisher lasts; between waits a stop (Ctrl-C) is seen.
+LISTEN_SLICE_S = 1
 
-    ``timeout_s`` bounds opening (but for standard input) and every later read: a silent network source raises
-    instead of blocking.
-    """
-    kwargs: dict[str, Any] = {"mode": "r", "metadata_errors": "replace", "options": dict(spec.options)}
+
+def is_rtsp_listen(spec: SourceSpec) -> bool:
+    """True when colonlight is the RTSP server an encoder publishes to (``--input-option rtsp_flags=listen``:
+    the encoder pushes its stream with ANNOUNCE/RECORD)."""
+    return _scheme(spec.url) in ("rtsp", "rtsps") and "listen" in spec.options.get("rtsp_flags", "").split("+")
+
+
+def _open_container(spec: SourceSpec, timeout_s: float, options: dict[str, str]) -> Any:
+    kwargs: dict[str, Any] = {"mode": "r", "metadata_errors": "replace", "options": options}
     if spec.format:
         kwargs["format"] = spec.format
     if spec.kind != "file":  # standard input may wait for its producer to start: only reads time out
         kwargs["timeout"] = (None if spec.kind == "stdin" else timeout_s, timeout_s)
+    return av.open(spec.url, **kwargs)
+
+
+def _listen(spec: SourceSpec, timeout_s: float, stop: threading.Event | None) -> Any:
+    """Wait for an RTSP publisher for ``timeout_s`` seconds, in slices so that ``stop`` ends the wait at once.
+
+    FFmpeg's own default (wait forever, ``listen_timeout`` -1) fails at once in FFmpeg 8 ("Numerical result out
+    of range") and could not be interrupted; a ``listen_timeout`` the user gives is kept as one wait.
+    """
+    if "listen_timeout" in spec.options:
+        return _open_container(spec, timeout_s + float(spec.options["listen_timeout"]), dict(spec.options))
+    deadline = time.monotonic() + timeout_s
+    while True:
+        wait = max(1, min(LISTEN_SLICE_S, math.ceil(deadline - time.monotonic())))
+        try:
+            return _open_container(spec, timeout_s + wait, {**spec.options, "listen_timeout": str(wait)})
+        except (av.error.ExitError, TimeoutError):  # no publisher in this slice
+            if (stop is not None and stop.is_set()) or time.monotonic() >= deadline:
+                raise
+
+
+def open_source(spec: SourceSpec, timeout_s: float, stop: threading.Event | None = None) -> tuple[Any, Any]:
+    """Open ``spec`` and pick its video stream; one InputError line on failure.
+
+    ``timeout_s`` bounds opening (but for standard input) and every later read: a silent network source raises
+    instead of blocking. A listening RTSP source waits ``timeout_s`` for its publisher, ended early by ``stop``.
+    """
     try:
-        container = av.open(spec.url, **kwargs)
+        if is_rtsp_listen(spec):
+            container = _listen(spec, timeout_s, stop)
+        else:
+            container = _open_container(spec, timeout_s, dict(spec.options))
     except (av.error.FFmpegError, OSError, ValueError, UnicodeError) as exc:
         raise InputError(f"{spec.text}: cannot open ({_cause(exc)})") from exc
     try:

@@ -1,0 +1,315 @@
+// colonlight_host: runs an exported colonlight step (`colonlight export -o model.onnx`) over a clip's frames, as a
+// C++ SLAM front end would, with nothing but ONNX Runtime, OpenCV's imgproc and the graph's JSON sidecar.
+//
+//   ffmpeg -i clip.mp4 -f rawvideo -pix_fmt rgb24 - | ./colonlight_host model.onnx 1350 1080 --out enhanced.rgb
+//
+// Reads raw RGB24 frames of WIDTH x HEIGHT from standard input, carries the recurrent state from frame to frame
+// (h, c in -> h_out, c_out out; zeros at the start), turns the step's output into the frame's correction by the
+// rule the sidecar gives for its head (gamma, gain-gamma or curve), applies it to the full-resolution frame
+// through a 256-entry table, and prints one JSON line per frame on standard output. `--out FILE` writes the
+// enhanced frames (raw RGB24) there. Errors: one line on standard error, exit 1 (2 for a usage error).
+#include <onnxruntime_cxx_api.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+using json = nlohmann::json;
+using Lut = std::array<std::uint8_t, 256>;
+
+namespace {
+
+struct Failure : std::runtime_error {
+    using std::runtime_error::runtime_error;
+};
+
+// What one frame's head output became: the table to apply (none: the frame unchanged) and what to report.
+struct Correction {
+    bool apply = false;
+    Lut lut{};
+    double gamma = 1.0;
+    double gain = 1.0;
+    std::vector<double> curve;  // the curve head's values at the knots
+    bool clamped = false;
+};
+
+// The sidecar's correction rule for one head (its "correction" entry: the numbers of its "gamma" formula).
+struct Rule {
+    std::string head;
+    double gamma_min = 0, gamma_max = 0;
+    double log_gamma_span = 0, log_gain_span = 0, gain_min = 0, gain_max = 0;  // gain-gamma
+    std::vector<double> knots;                                                // curve
+    double slope_offset = 0, slope_max = 0, summary_at = 0;
+
+    static Rule from_sidecar(const json& side) {
+        const json& c = side.at("correction");
+        if (c.is_null()) throw Failure("the sidecar does not say how this network's outputs become a correction");
+        Rule r;
+        r.head = c.at("head").get<std::string>();
+        r.gamma_min = c.at("gamma_range").at(0).get<double>();
+        r.gamma_max = c.at("gamma_range").at(1).get<double>();
+        if (r.head == "gain-gamma") {
+            r.log_gamma_span = c.at("log_gamma_span").get<double>();
+            r.log_gain_span = c.at("log_gain_span").get<double>();
+            r.gain_min = c.at("gain_range").at(0).get<double>();
+            r.gain_max = c.at("gain_range").at(1).get<double>();
+        } else if (r.head == "curve") {
+            r.knots = c.at("knots").get<std::vector<double>>();
+            r.slope_offset = c.at("slope_offset").get<double>();
+            r.slope_max = c.at("slope_max").get<double>();
+            r.summary_at = c.at("summary_at").get<double>();
+        } else if (r.head != "gamma") {
+            throw Failure("unknown head '" + r.head + "' in the sidecar");
+        }
+        return r;
+    }
+
+    Correction correct(const std::vector<float>& out) const {
+        if (head == "gamma") return gamma_head(out.at(0));
+        if (head == "gain-gamma") return gain_gamma_head(out.at(0), out.at(1));
+        return curve_head(out);
+    }
+
+   private:
+    // lut[v] = round(255 * min(1, gain * (v / 255) ^ gamma)), in double precision, rounded half to even.
+    static Lut power_lut(double gain, double gamma) {
+        Lut lut{};
+        for (int v = 0; v < 256; ++v) {
+            double y = std::pow(v / 255.0, gamma);
+            if (gain != 1.0) y = std::min(1.0, gain * y);
+            lut[v] = static_cast<std::uint8_t>(std::nearbyint(255.0 * y));
+        }
+        return lut;
+    }
+
+    Correction gamma_head(float a) const {  // gamma = 1 / a, clamped; a <= 0 or not finite: unchanged
+        Correction c;
+        if (!std::isfinite(a) || a <= 0.0f) {
+            c.clamped = true;
+        } else {
+            double g = 1.0 / static_cast<double>(a);
+            c.gamma = std::clamp(g, gamma_min, gamma_max);
+            c.clamped = c.gamma != g;
+        }
+        c.apply = true;
+        c.lut = power_lut(1.0, c.gamma);
+        return c;
+    }
+
+    Correction gain_gamma_head(float z0, float z1) const {
+        Correction c;
+        c.apply = true;
+        if (!std::isfinite(z0) || !std::isfinite(z1)) {
+            c.clamped = true;
+        } else {
+            double gamma = std::exp(log_gamma_span * std::tanh(static_cast<double>(z0)));
+            double gain = std::exp(log_gain_span * std::tanh(static_cast<double>(z1)));
+            c.gamma = std::clamp(gamma, gamma_min, gamma_max);
+            c.gain = std::clamp(gain, gain_min, gain_max);
+            c.clamped = c.gamma != gamma || c.gain != gain;
+        }
+        c.lut = power_lut(c.gain, c.gamma);
+        return c;
+    }
+
+    // np.interp's rule: linear between the two knots around x, the end values outside.
+    static double interp(double x, const std::vector<double>& xs, const std::vector<double>& ys) {
+        if (x <= xs.front()) return ys.front();
+        if (x >= xs.back()) return ys.back();
+        std::size_t j = std::upper_bound(xs.begin(), xs.end(), x) - xs.begin() - 1;
+        double slope = (ys[j + 1] - ys[j]) / (xs[j + 1] - xs[j]);
+        return slope * (x - xs[j]) + ys[j];
+    }
+
+    Correction curve_head(const std::vector<float>& z) const {
+        Correction c;
+        std::size_t segments = knots.size() - 1;
+        if (z.size() != segments) throw Failure("the curve head gave " + std::to_string(z.size()) + " numbers");
+        if (!std::all_of(z.begin(), z.end(), [](float v) { return std::isfinite(v); })) {
+            c.clamped = true;  // no usable curve: the frame unchanged
+            return c;
+        }
+        c.curve.assign(1, 0.0);
+        for (std::size_t k = 0; k < segments; ++k) {
+            double t = static_cast<double>(z[k]) + slope_offset;  // softplus(t) = log(1 + e^t), without overflow
+            double slope = t == 0.0 ? std::log(2.0) : t < 0.0 ? std::log1p(std::exp(t)) : t + std::log1p(std::exp(-t));
+            if (slope > slope_max) {
+                slope = slope_max;
+                c.clamped = true;
+            }
+            c.curve.push_back(c.curve.back() + slope * (knots[k + 1] - knots[k]));
+        }
+        double at = interp(summary_at, knots, c.curve);  // the summary gamma, for the record: a power law at m
+        c.gamma = std::clamp(std::log(std::clamp(at, 1e-9, 1.0)) / std::log(summary_at), gamma_min, gamma_max);
+        for (int v = 0; v < 256; ++v)
+            c.lut[v] = static_cast<std::uint8_t>(
+                std::nearbyint(255.0 * std::clamp(interp(v / 255.0, knots, c.curve), 0.0, 1.0)));
+        c.apply = true;
+        return c;
+    }
+};
+
+// The copy of the frame the network sees: halved with a Gaussian pyramid while its shorter side is at least
+// 4 * size, then area-averaged to size x size (the sidecar's "resize"); a frame of that size already is used as is.
+cv::Mat network_input(const cv::Mat& rgb, int size) {
+    if (rgb.rows == size && rgb.cols == size) return rgb;
+    cv::Mat small = rgb;
+    while (std::min(small.rows, small.cols) >= 4 * size) cv::pyrDown(small, small);
+    cv::resize(small, small, cv::Size(size, size), 0, 0, cv::INTER_AREA);
+    return small;
+}
+
+std::string number(double v) {
+    if (!std::isfinite(v)) return "null";
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.17g", v);
+    return buf;
+}
+
+json read_json(const std::string& path) {
+    std::ifstream in(path);
+    if (!in) throw Failure(path + ": cannot read the sidecar (export writes it beside the graph)");
+    try {
+        return json::parse(in);
+    } catch (const json::exception& e) {
+        throw Failure(path + ": not a JSON sidecar (" + e.what() + ")");
+    }
+}
+
+int run(const std::string& model, int width, int height, const std::string& out_path) {
+    const json side = read_json(model + ".json");
+    const int size = side.at("input_size").get<int>();
+    const long seeds = side.at("seed_frames").at("count").get<long>();
+    const Rule rule = Rule::from_sidecar(side);
+
+    // Inputs: the frame, then the state tensors (zeros); outputs: the head's, then each state's "<name>_out".
+    std::vector<std::string> in_names, out_names;
+    std::vector<std::vector<int64_t>> in_shapes;
+    std::vector<std::vector<float>> in_data;
+    for (const json& i : side.at("inputs")) {
+        in_names.push_back(i.at("name").get<std::string>());
+        in_shapes.push_back(i.at("shape").get<std::vector<int64_t>>());
+        int64_t n = 1;
+        for (int64_t d : in_shapes.back()) n *= d;
+        in_data.emplace_back(static_cast<std::size_t>(n), 0.0f);
+    }
+    if (in_names.empty() || in_names[0] != "frame") throw Failure("the sidecar's first input is not 'frame'");
+    for (const json& o : side.at("outputs")) out_names.push_back(o.at("name").get<std::string>());
+    const std::size_t n_state = in_names.size() - 1, n_head = out_names.size() - n_state;
+
+    Ort::Env env(ORT_LOGGING_LEVEL_WARNING, "colonlight");
+    Ort::SessionOptions options;
+    options.SetIntraOpNumThreads(1);  // the step is small: leave the cores to SLAM
+    options.SetInterOpNumThreads(1);
+    options.AddConfigEntry("session.intra_op.allow_spinning", "0");
+    Ort::Session session(env, model.c_str(), options);
+    auto memory = Ort::MemoryInfo::CreateCpu(OrtArenaAllocator, OrtMemTypeDefault);
+    std::vector<const char*> in_c, out_c;
+    for (auto& n : in_names) in_c.push_back(n.c_str());
+    for (auto& n : out_names) out_c.push_back(n.c_str());
+
+    std::ofstream out_file;
+    if (!out_path.empty()) {
+        out_file.open(out_path, std::ios::binary);
+        if (!out_file) throw Failure(out_path + ": cannot write");
+    }
+    const std::size_t frame_bytes = static_cast<std::size_t>(width) * height * 3;
+    std::vector<std::uint8_t> buffer(frame_bytes);
+    for (long index = 0;; ++index) {
+        std::cin.read(reinterpret_cast<char*>(buffer.data()), static_cast<std::streamsize>(frame_bytes));
+        if (std::cin.gcount() == 0) break;
+        if (static_cast<std::size_t>(std::cin.gcount()) != frame_bytes)
+            throw Failure("standard input ended inside frame " + std::to_string(index) + " (not " +
+                          std::to_string(width) + "x" + std::to_string(height) + " RGB24?)");
+        cv::Mat rgb(height, width, CV_8UC3, buffer.data());
+        cv::Mat x = network_input(rgb, size);
+        std::vector<float>& frame = in_data[0];  // NCHW, channels R G B, value / 255
+        for (int y = 0; y < size; ++y)
+            for (int c0 = 0; c0 < size; ++c0)
+                for (int ch = 0; ch < 3; ++ch)
+                    frame[(static_cast<std::size_t>(ch) * size + y) * size + c0] = x.at<cv::Vec3b>(y, c0)[ch] / 255.f;
+
+        std::vector<Ort::Value> inputs;
+        for (std::size_t i = 0; i < in_names.size(); ++i)
+            inputs.push_back(Ort::Value::CreateTensor<float>(memory, in_data[i].data(), in_data[i].size(),
+                                                             in_shapes[i].data(), in_shapes[i].size()));
+        auto outputs = session.Run(Ort::RunOptions{nullptr}, in_c.data(), inputs.data(), inputs.size(), out_c.data(),
+                                   out_c.size());
+        std::vector<float> head;
+        for (std::size_t o = 0; o < n_head; ++o) {
+            const float* p = outputs[o].GetTensorData<float>();
+            head.insert(head.end(), p, p + outputs[o].GetTensorTypeAndShapeInfo().GetElementCount());
+        }
+        for (std::size_t s = 0; s < n_state; ++s) {  // the state for the next frame
+            const float* p = outputs[n_head + s].GetTensorData<float>();
+            std::copy_n(p, in_data[1 + s].size(), in_data[1 + s].begin());
+        }
+
+        const bool seed = index < seeds;  // seeds build the state and pass through unchanged
+        Correction c = seed ? Correction{} : rule.correct(head);
+        std::string line = "{\"index\": " + std::to_string(index) + ", \"head\": [";
+        for (std::size_t i = 0; i < head.size(); ++i) line += (i ? ", " : "") + number(head[i]);
+        line += "], \"seed\": " + std::string(seed ? "true" : "false") + ", \"gamma\": " + number(c.gamma);
+        if (rule.head == "gain-gamma") line += ", \"gain\": " + number(c.gain);
+        if (rule.head == "curve" && !c.curve.empty()) {
+            line += ", \"curve\": [";
+            for (std::size_t i = 0; i < c.curve.size(); ++i) line += (i ? ", " : "") + number(c.curve[i]);
+            line += "]";
+        }
+        line += ", \"clamped\": " + std::string(c.clamped ? "true" : "false") + "}";
+        std::cout << line << '\n' << std::flush;
+
+        if (out_file.is_open()) {
+            cv::Mat enhanced = rgb;
+            if (c.apply) cv::LUT(rgb, cv::Mat(1, 256, CV_8U, c.lut.data()), enhanced);  // every sample, every channel
+            out_file.write(reinterpret_cast<const char*>(enhanced.data), static_cast<std::streamsize>(frame_bytes));
+            if (!out_file) throw Failure(out_path + ": write failed");
+        }
+    }
+    return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    std::string out_path;
+    std::vector<std::string> args;
+    for (int i = 1; i < argc; ++i) {
+        std::string a = argv[i];
+        if (a == "--out" && i + 1 < argc)
+            out_path = argv[++i];
+        else
+            args.push_back(a);
+    }
+    int width = 0, height = 0;
+    if (args.size() == 3) {
+        width = std::atoi(args[1].c_str());
+        height = std::atoi(args[2].c_str());
+    }
+    if (width <= 0 || height <= 0) {
+        std::cerr << "usage: colonlight_host MODEL.onnx WIDTH HEIGHT [--out ENHANCED.rgb] < frames.rgb (raw RGB24)\n";
+        return 2;
+    }
+    try {
+        return run(args[0], width, height, out_path);
+    } catch (const Failure& e) {
+        std::cerr << "error: " << e.what() << '\n';
+    } catch (const Ort::Exception& e) {
+        std::cerr << "error: " << args[0] << ": " << e.what() << '\n';
+    } catch (const json::exception& e) {
+        std::cerr << "error: " << args[0] << ".json: " << e.what() << '\n';
+    } catch (const std::exception& e) {
+        std::cerr << "error: " << e.what() << '\n';
+    }
+    return 1;
+}
