@@ -123,7 +123,9 @@ class DecodeReport:
         if self.truncated:
             out.append(f"truncated: {self.truncated}; the {self.source_frames} frames that decode were used")
         if self.damaged:
-            out.append(f"{self.damaged} damaged packets/frames were decoded with errors concealed")
+            out.append(
+                f"{self.damaged} damaged packets/frames were skipped or decoded with errors concealed, as ffmpeg does"
+            )
         if self.discontinuities:
             out.append(
                 f"{self.discontinuities} timestamp discontinuities (joined or restarted recording) were "
@@ -630,27 +632,45 @@ def _check_index(path: Path, stream: Any) -> None:
 
 
 def _frames(
-    path: Path, container: Any, stream: Any, fix: Callable[[Any], None] | None, report: DecodeReport
+    path: Path, container: Any, stream: Any, fix: Callable[[Any], None] | None, report: DecodeReport, cap: int
 ) -> Iterator[Any]:
     """Decoded frames of ``stream``; a demux or decode failure becomes InputError naming the frame reached.
 
     Packets the demuxer flags as corrupt and frames decoded with concealed errors are kept, as ``ffmpeg``
-    keeps them (so that frame choice still matches it), and counted in ``report`` (one warning per clip).
+    keeps them (so that frame choice still matches it), and counted in ``report`` (one warning per clip). A
+    packet the decoder rejects (damage part way through a clip) is skipped and counted, as ``ffmpeg`` skips it
+    (``fftools/ffmpeg_dec.c``: "Error submitting packet to decoder", then the next packet): the frames after it
+    still decode, from the next keyframe or with errors concealed, and are the frames ``ffmpeg`` outputs. A
+    packet refused because its frames would exceed the pixel cap ``cap`` (libavcodec's ``max_pixels``: a stream
+    that grows mid-clip) fails the clip instead (FrameTooLargeError): those frames are the clip, not damage.
     """
-    try:
-        for packet in container.demux(stream):
-            report.damaged += bool(packet.is_corrupt)
-            if packet.size or packet.dts is not None:  # not the empty packet that flushes the decoder
-                report.packets += 1
-                if fix is not None:
-                    fix(packet)
-            for frame in packet.decode():
-                report.source_frames += 1
-                report.damaged += bool(frame.is_corrupt)
-                yield frame
-    except (av.error.FFmpegError, OSError, ValueError) as exc:
-        cause = f"corrupt or truncated video: reading failed after {report.source_frames} frames ({_cause(exc)})"
-        raise _error(path, cause) from exc
+    packets = container.demux(stream)
+    while True:
+        try:
+            packet = next(packets, None)
+        except (av.error.FFmpegError, OSError, ValueError) as exc:
+            cause = f"corrupt or truncated video: reading failed after {report.source_frames} frames ({_cause(exc)})"
+            raise _error(path, cause) from exc
+        if packet is None:
+            return
+        report.damaged += bool(packet.is_corrupt)
+        if packet.size or packet.dts is not None:  # not the empty packet that flushes the decoder
+            report.packets += 1
+            if fix is not None:
+                fix(packet)
+        try:
+            frames = packet.decode()
+        except av.error.MemoryError:
+            raise
+        except av.error.FFmpegError as exc:  # ffmpeg goes on after any decoding error (without -xerror)
+            _check_size(path, stream, cap)
+            log.debug("%s: packet %d not decoded: %s", path, report.packets, exc)
+            report.damaged += 1
+            continue
+        for frame in frames:
+            report.source_frames += 1
+            report.damaged += bool(frame.is_corrupt)
+            yield frame
 
 
 _TS_PACKET_SIZES = (188, 192, 204)  # MPEG-TS, M2TS (timecode prefix), TS with FEC bytes
@@ -729,9 +749,10 @@ def probe_video(path: Path, max_pixels: int | None = None) -> VideoInfo:
 
     FrameTooLargeError, before decoding, if its frames exceed ``max_pixels`` (None: the configured cap)."""
     path = Path(path)
-    container, stream = _open(path, max_pixels)
+    cap = max_pixels_setting() if max_pixels is None else int(max_pixels)
+    container, stream = _open(path, cap)
     with container:
-        first = next(iter(_frames(path, container, stream, None, DecodeReport())), None)
+        first = next(iter(_frames(path, container, stream, None, DecodeReport(), cap)), None)
         if first is None:
             raise _error(path, "no decodable video frames (truncated or corrupt?)")
         rotation, _ = _orientation(_display_matrix(first), _rotation_tag(stream))
@@ -790,18 +811,25 @@ def iter_video_frames(
     path = Path(path)
     warn = report is None
     report = DecodeReport() if report is None else report
-    container, stream = _open(path, max_pixels)
+    cap = max_pixels_setting() if max_pixels is None else int(max_pixels)
+    container, stream = _open(path, cap)
     with container:
         _check_index(path, stream)
         selector = FpsSelector(fps, stream.time_base) if fps else None
-        yield from _decode(path, container, stream, selector, min_frames, report)
+        yield from _decode(path, container, stream, selector, min_frames, report, cap)
         report.truncated = _truncation(path, container, stream, report)
         for line in report.warnings if warn else ():
             log.warning("%s: %s", path, line)
 
 
 def _decode(
-    path: Path, container: Any, stream: Any, selector: FpsSelector | None, min_frames: int, report: DecodeReport
+    path: Path,
+    container: Any,
+    stream: Any,
+    selector: FpsSelector | None,
+    min_frames: int,
+    report: DecodeReport,
+    cap: int,
 ) -> Iterator[DecodedFrame]:
     ts = _FfmpegTimestamps(container, stream)
     tag = _rotation_tag(stream)
@@ -853,7 +881,7 @@ def _decode(
                 yield DecodedFrame(out, index, run.source_index, index / rate, t_src)
 
     runs: deque[FpsRun] = deque()  # decided, not yet handed out (only while fewer than min_frames decoded)
-    for frame in _frames(path, container, stream, ts.packets.fix, report):
+    for frame in _frames(path, container, stream, ts.packets.fix, report, cap):
         pts = ts.frame_pts(frame)
         if start is None:  # source times count from the stream start, in the same shifted pts domain
             start = pts if stream.start_time is None or ts.unreliable else stream.start_time + ts.offset
