@@ -34,6 +34,7 @@ import numpy as np
 from av.video.reformatter import VideoReformatter
 
 from .atomic import atomic_path
+from .containers import declared_end, truncation_reason
 from .errors import FrameTooLargeError, InputError
 from .limits import DEFAULT_FPS, max_pixels_setting
 
@@ -548,7 +549,7 @@ def _open_container(path: Path, options: dict[str, str]) -> tuple[Any, Any]:
     except (av.error.FFmpegError, OSError, UnicodeError, ValueError) as exc:
         if isinstance(exc, av.error.InvalidDataError) and _looks_like_mp4(path):
             raise _error(path, "truncated or unfinished MP4/MOV: its index ('moov') is missing") from exc
-        end, size = _declared_end(path), _file_size(path)
+        end, size = declared_end(path), _file_size(path)
         if isinstance(exc, av.error.InvalidDataError) and end is not None and size is not None and end > size:
             raise _error(
                 path,
@@ -673,60 +674,6 @@ def _frames(
             yield frame
 
 
-_TS_PACKET_SIZES = (188, 192, 204)  # MPEG-TS, M2TS (timecode prefix), TS with FEC bytes
-
-
-def _vint(data: bytes, pos: int) -> tuple[int, int, bool] | None:
-    """An EBML variable-size integer at ``pos``: (value, next position, all ones = "unknown size")."""
-    if pos >= len(data) or data[pos] == 0:
-        return None
-    length = 8 - data[pos].bit_length() + 1
-    if pos + length > len(data):
-        return None
-    value = data[pos] & (0xFF >> length)
-    for byte in data[pos + 1 : pos + length]:
-        value = value << 8 | byte
-    return value, pos + length, value == (1 << (7 * length)) - 1
-
-
-def _declared_end(path: Path) -> int | None:
-    """Where the file should end by its container's own top-level size field (RIFF for AVI, the Segment of
-    Matroska/WebM), or None where there is none (unknown size, as a live recording writes, or another format)."""
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(4096)
-    except OSError:
-        return None
-    if head[:4] == b"RIFF" and len(head) >= 8:
-        return 8 + int.from_bytes(head[4:8], "little")
-    if head[:4] == b"\x1a\x45\xdf\xa3":  # EBML header, then the Segment element (ID 18 53 80 67)
-        header = _vint(head, 4)
-        if header is None:
-            return None
-        pos = header[1] + header[0]
-        if head[pos : pos + 4] != b"\x18\x53\x80\x67":
-            return None
-        seg = _vint(head, pos + 4)
-        return None if seg is None or seg[2] else seg[1] + seg[0]
-    return None
-
-
-def _truncation(path: Path, container: Any, stream: Any, report: DecodeReport) -> str | None:
-    """Why the clip looks cut short, from container metadata (used to warn, never to count); None if it does not."""
-    size = _file_size(path)
-    if size is None:
-        return None
-    fmt = container.format.name
-    end = _declared_end(path)
-    if end is not None and end > size:
-        return f"the file ends at byte {size} but its container says it ends at byte {end}"
-    if fmt == "mpegts" and all(size % n for n in _TS_PACKET_SIZES):
-        return f"the file ends inside a transport-stream packet ({size} bytes is no whole number of packets)"
-    # Not used: header frame counts (an AVI with audio declares one frame more than it holds) and durations
-    # (the audio may outlast the video): either would flag sound files.
-    return None
-
-
 # ------------------------------------------------------------------------------------------------------------
 # Public API
 # ------------------------------------------------------------------------------------------------------------
@@ -817,7 +764,7 @@ def iter_video_frames(
         _check_index(path, stream)
         selector = FpsSelector(fps, stream.time_base) if fps else None
         yield from _decode(path, container, stream, selector, min_frames, report, cap)
-        report.truncated = _truncation(path, container, stream, report)
+        report.truncated = truncation_reason(path, container.format.name)
         for line in report.warnings if warn else ():
             log.warning("%s: %s", path, line)
 
