@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from colonlight.limits import DEFAULT_MAX_PIXELS, MAX_FPS, MAX_PIXELS_ENV
+from colonlight.limits import DEFAULT_MAX_GAP_FRAMES, DEFAULT_MAX_PIXELS, MAX_FPS, MAX_GAP_FRAMES_ENV, MAX_PIXELS_ENV
 
 Device = typer.Option("auto", "--device", envvar="COLONLIGHT_DEVICE", help="auto | cpu | cuda | cuda:N.")
 Method = typer.Option(
@@ -39,6 +39,14 @@ MaxPixels = typer.Option(
     envvar=MAX_PIXELS_ENV,
     min=1,
     help="Largest frame (width x height) a clip may have; larger clips fail from their header, before decoding.",
+)
+MaxGapFrames = typer.Option(
+    DEFAULT_MAX_GAP_FRAMES,
+    "--max-gap-frames",
+    envvar=MAX_GAP_FRAMES_ENV,
+    min=1,
+    help="Most copies of one frame a timestamp gap may add (the fps conversion repeats a frame until the next is "
+    "due); a clip past it fails. Default: 10 minutes at 18 fps.",
 )
 Content = typer.Option(
     "auto",

@@ -38,7 +38,7 @@ from .atomic import publish, remove_stale_temporaries, write_json_atomic, write_
 from .content import DEFAULT_CONTENT, content_stream, parse_content_mode
 from .errors import InputError, OptionError
 from .frames import encode_image
-from .limits import DEFAULT_FPS, MAX_FPS, max_pixels_setting
+from .limits import DEFAULT_FPS, MAX_FPS, max_gap_frames_setting, max_pixels_setting
 from .methods.base import FrameResult, Method
 from .provenance import library_versions
 from .slam_layout import CAMERA_FILES, TIMES_FILE, TUM_RGB_FILE, camera_setting, clip_camera, write_slam_layout
@@ -103,6 +103,9 @@ class ClipOptions:
     camera: tuple[str, str] | None = None  # (file name, text) of a DSO/COLMAP camera file to copy (slam_layout)
     #: Largest frame (width x height) decoded; larger clips fail from their header. Default: limits.max_pixels_setting()
     max_pixels: int = field(default_factory=max_pixels_setting)
+    #: Most copies of one frame a timestamp gap may add; past it the clip fails (limits.max_gap_frames_setting()).
+    #: Not in the settings record: it decides whether a clip fails, never a byte of a clip that is done.
+    max_gap_frames: int = field(default_factory=max_gap_frames_setting)
     content: str = DEFAULT_CONTENT  # auto: the method sees the field of view less fixed text (colonlight.content)
 
     def __post_init__(self) -> None:
@@ -115,6 +118,8 @@ class ClipOptions:
             raise OptionError(f"fps must be within 0..{MAX_FPS:g}, got {self.fps:g}")
         if self.max_pixels < 1:
             raise OptionError(f"max_pixels must be >= 1, got {self.max_pixels}")
+        if self.max_gap_frames < 1:
+            raise OptionError(f"max_gap_frames must be >= 1, got {self.max_gap_frames}")
         if not (self.frames or self.video):
             raise OptionError("nothing to write: enable frames or video")
 
@@ -350,6 +355,7 @@ def _enhance_clip(
         min_frames=MIN_FRAMES,
         max_pixels=opts.max_pixels,
         report=report,
+        max_gap_frames=opts.max_gap_frames,
     )
     decoded = _prefetch(frames, stop)
     # Hold two frames before writing anything, so that a clip too short to enhance leaves nothing behind.

@@ -36,7 +36,7 @@ from av.video.reformatter import VideoReformatter
 from .atomic import atomic_path
 from .containers import declared_end, truncation_reason
 from .errors import FrameTooLargeError, InputError
-from .limits import DEFAULT_FPS, max_pixels_setting
+from .limits import DEFAULT_FPS, MAX_GAP_FRAMES_ENV, max_gap_frames_setting, max_pixels_setting
 
 log = logging.getLogger(__name__)
 
@@ -741,6 +741,7 @@ def iter_video_frames(
     *,
     min_frames: int = 0,
     max_pixels: int | None = None,
+    max_gap_frames: int | None = None,
     report: DecodeReport | None = None,
 ) -> Iterator[DecodedFrame]:
     """Decode ``path`` into upright RGB frames at ``fps``, exactly the frames FFmpeg's ``fps`` filter picks.
@@ -752,6 +753,8 @@ def iter_video_frames(
     in clip length and in repeats: at most two source frames (plus ``min_frames``) are held, and a frame that
     the fps conversion repeats is copied as each repeat is taken. Frames of more than ``max_pixels`` pixels
     (None: the configured cap) are refused from the stream header (FrameTooLargeError) before any is decoded.
+    A timestamp gap that would repeat one frame more than ``max_gap_frames`` times (None: the configured cap,
+    :func:`colonlight.limits.max_gap_frames_setting`) is an InputError raised before the first repeat.
     ``report`` (a :class:`DecodeReport`) learns what else decoding found: a file cut short (``truncated``),
     damaged packets, timestamp discontinuities; without one, these are logged as warnings.
     """
@@ -763,7 +766,8 @@ def iter_video_frames(
     with container:
         _check_index(path, stream)
         selector = FpsSelector(fps, stream.time_base) if fps else None
-        yield from _decode(path, container, stream, selector, min_frames, report, cap)
+        gap_cap = max_gap_frames_setting() if max_gap_frames is None else int(max_gap_frames)
+        yield from _decode(path, container, stream, selector, min_frames, report, cap, gap_cap)
         report.truncated = truncation_reason(path, container.format.name)
         for line in report.warnings if warn else ():
             log.warning("%s: %s", path, line)
@@ -777,6 +781,7 @@ def _decode(
     min_frames: int,
     report: DecodeReport,
     cap: int,
+    gap_cap: int,
 ) -> Iterator[DecodedFrame]:
     ts = _FfmpegTimestamps(container, stream)
     tag = _rotation_tag(stream)
@@ -819,6 +824,13 @@ def _decode(
         while runs:
             run = runs.popleft()
             frame, t_src = held[run.source_index]
+            if run.count - 1 > gap_cap:
+                raise _error(
+                    path,
+                    f"a timestamp gap after source frame {run.source_index} (at {t_src:.3f} s) would repeat it "
+                    f"{run.count - 1} times ({run.count / rate:.1f} s at {rate:g} fps), more than the cap of "
+                    f"{gap_cap} (--max-gap-frames or {MAX_GAP_FRAMES_ENV})",
+                )
             image = convert(frame, run.source_index)
             for k in range(run.count):
                 index = run.index + k
