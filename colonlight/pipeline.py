@@ -418,7 +418,7 @@ def _enhance_clip(
 
     write_slam_layout(out_dir, records, opts.format if opts.frames else None, camera)
     settings = settings_record(method, opts)
-    gammas = {
+    gammas: dict[str, Any] = {
         "clip": clip_name,
         "source": str(source),
         "fps": fps_out,
