@@ -110,6 +110,7 @@ def enhance(
         False, "--overwrite", help="Redo clips whose outputs are complete (default: skip them)."
     ),
     max_pixels: int = options.MaxPixels,
+    max_gap_frames: int = options.MaxGapFrames,
     quiet: bool = options.Quiet,
     debug: bool = options.Debug,
 ) -> None:
@@ -136,6 +137,7 @@ def enhance(
             quality=quality,
             camera=None if cam is None else (cam.name, cam.text),
             max_pixels=max_pixels,
+            max_gap_frames=max_gap_frames,
             content=content,
         )
     except OptionError as exc:

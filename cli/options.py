@@ -11,7 +11,7 @@ from typing import Any
 import typer
 
 from colonlight.errors import MethodOptionError
-from colonlight.limits import DEFAULT_MAX_PIXELS, MAX_FPS, MAX_PIXELS_ENV
+from colonlight.limits import DEFAULT_MAX_GAP_FRAMES, DEFAULT_MAX_PIXELS, MAX_FPS, MAX_GAP_FRAMES_ENV, MAX_PIXELS_ENV
 from colonlight.methods.options import OPTIONS, methods_kwargs, option
 
 Method = typer.Option(
@@ -78,6 +78,14 @@ MaxPixels = typer.Option(
     envvar=MAX_PIXELS_ENV,
     min=1,
     help="Largest frame (width x height) a clip may have; larger clips fail from their header, before decoding.",
+)
+MaxGapFrames = typer.Option(
+    DEFAULT_MAX_GAP_FRAMES,
+    "--max-gap-frames",
+    envvar=MAX_GAP_FRAMES_ENV,
+    min=1,
+    help="Most copies of one frame a timestamp gap may add (the fps conversion repeats a frame until the next is "
+    "due); a clip past it fails. Default: 10 minutes at 18 fps.",
 )
 Content = typer.Option(
     "auto",

@@ -19,6 +19,7 @@ def serve(
     """
     import uvicorn
     from colonlight_service.app import create_app
+    from colonlight_service.http_protocol import header_deadline_protocol
     from colonlight_service.settings import Settings
     from pydantic import ValidationError
 
@@ -50,6 +51,7 @@ def serve(
         log_level=settings.log_level,
         log_config=log_config,
         server_header=False,
+        http=header_deadline_protocol(settings.header_timeout_seconds),  # slow request headers: 408 (slowloris)
         timeout_graceful_shutdown=10,
         ws_max_size=settings.stream_max_frame_bytes,  # /v1/stream: a larger message closes with 1009
         ws_per_message_deflate=False,  # /v1/stream carries JPEG/PNG, which deflate cannot shrink: spare the CPU

@@ -19,11 +19,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .atomic import remove_stale_temporaries
 from .errors import ColonlightError
 from .frames import list_image_frames
 from .methods import Method, create_method
-from .pipeline import FRAMES_DIR, VIDEO_FILE, ClipOptions, complete_record, enhance_clip
+from .pipeline import ClipOptions, complete_record, discard_partial_outputs, enhance_clip
 from .video import probe_video
 
 #: Errors of writing that mean "no room": the clip's partial outputs are removed to free it.
@@ -118,24 +117,6 @@ def _is_under(path: str | os.PathLike[str] | None, folder: Path) -> bool:
         return False
 
 
-def _discard_partial_outputs(out_dir: Path) -> None:
-    """Remove what a clip that failed on a write error published (frames, video, temporaries), to free the room
-    it took; a rerun writes them all again anyway (only a clip's ``gammas.json`` makes it complete)."""
-    remove_stale_temporaries(out_dir)
-    frames_dir = out_dir / FRAMES_DIR
-    try:
-        for p in frames_dir.iterdir():
-            if p.name.partition(".")[0].isdigit():
-                p.unlink(missing_ok=True)
-    except OSError:
-        pass
-    with contextlib.suppress(OSError):
-        (out_dir / VIDEO_FILE).unlink(missing_ok=True)
-    for folder in (frames_dir, out_dir):
-        with contextlib.suppress(OSError):
-            folder.rmdir()  # only if now empty
-
-
 def _os_error_line(job: ClipJob, exc: OSError) -> str:
     """One line for an OS error while running a clip: a write to its outputs, or a read of its source."""
     cause = exc.strerror or type(exc).__name__
@@ -155,7 +136,7 @@ def engine_wording(job: ClipJob, exc: Exception) -> tuple[str, str | None]:
     if isinstance(exc, OSError):  # a full disk, a read-only remount, an I/O error: this clip fails, the batch goes on
         line = _os_error_line(job, exc)
         if exc.errno in _NO_ROOM or _is_under(exc.filename, job.out_dir):
-            _discard_partial_outputs(job.out_dir)
+            discard_partial_outputs(job.out_dir)
         return line, traceback.format_exc()
     return f"{job.source}: internal error: {type(exc).__name__}: {exc}", traceback.format_exc()
 

@@ -3,7 +3,8 @@
 
 A frame of ``w x h`` pixels costs ``3 w h`` bytes as RGB and about as much again while it is decoded, resized and
 encoded, so the pixel cap bounds memory per frame whatever the input claims to be; the fps cap bounds how many
-output frames one second of input can become.
+output frames one second of input can become, and the gap cap how many copies of one frame a timestamp gap can
+become (the copies stream one at a time, so the cap bounds time and disk, not memory).
 """
 
 from __future__ import annotations
@@ -18,6 +19,12 @@ DEFAULT_MAX_PIXELS = 4096 * 4096
 MAX_FPS = 240.0
 #: Environment variable that overrides :data:`DEFAULT_MAX_PIXELS` in the CLI and the service alike.
 MAX_PIXELS_ENV = "COLONLIGHT_MAX_PIXELS"
+#: Most copies of one source frame that the fps conversion may add for a timestamp gap (the frame repeated
+#: until the next one is due, as ``ffmpeg -vf fps=18`` repeats it): 10 minutes at 18 fps. A clip past it fails
+#: with one line; MPEG-TS/PS jumps of more than 10 s are bridged before this (as ffmpeg bridges them).
+DEFAULT_MAX_GAP_FRAMES = 10 * 60 * 18
+#: Environment variable that overrides :data:`DEFAULT_MAX_GAP_FRAMES` in the CLI and the service alike.
+MAX_GAP_FRAMES_ENV = "COLONLIGHT_MAX_GAP_FRAMES"
 #: The extraction rate when none is given (CLI, service, evaluation, training, a frame folder's assumed rate):
 #: the authors' ``ffmpeg -vf fps=18`` extraction, which their model was trained on.
 DEFAULT_FPS = 18.0
@@ -34,18 +41,30 @@ def available_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
-def max_pixels_setting(environ: Mapping[str, str] | None = None) -> int:
-    """The pixel cap in force: :data:`MAX_PIXELS_ENV` if set, else :data:`DEFAULT_MAX_PIXELS`.
-
-    ValueError (naming the variable) if the variable is set to anything but a positive integer.
-    """
-    raw = (os.environ if environ is None else environ).get(MAX_PIXELS_ENV, "").strip()
+def _positive_setting(name: str, default: int, unit: str, environ: Mapping[str, str] | None) -> int:
+    raw = (os.environ if environ is None else environ).get(name, "").strip()
     if not raw:
-        return DEFAULT_MAX_PIXELS
+        return default
     try:
         value = int(raw)
     except ValueError:
         value = 0
     if value < 1:
-        raise ValueError(f"{MAX_PIXELS_ENV} must be a positive whole number of pixels, got {raw!r}")
+        raise ValueError(f"{name} must be a positive whole number of {unit}, got {raw!r}")
     return value
+
+
+def max_pixels_setting(environ: Mapping[str, str] | None = None) -> int:
+    """The pixel cap in force: :data:`MAX_PIXELS_ENV` if set, else :data:`DEFAULT_MAX_PIXELS`.
+
+    ValueError (naming the variable) if the variable is set to anything but a positive integer.
+    """
+    return _positive_setting(MAX_PIXELS_ENV, DEFAULT_MAX_PIXELS, "pixels", environ)
+
+
+def max_gap_frames_setting(environ: Mapping[str, str] | None = None) -> int:
+    """The cap on a gap's repeated frames: :data:`MAX_GAP_FRAMES_ENV` if set, else :data:`DEFAULT_MAX_GAP_FRAMES`.
+
+    ValueError (naming the variable) if the variable is set to anything but a positive integer.
+    """
+    return _positive_setting(MAX_GAP_FRAMES_ENV, DEFAULT_MAX_GAP_FRAMES, "frames", environ)

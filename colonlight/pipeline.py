@@ -18,6 +18,7 @@ time, and the pixel cap (``ClipOptions.max_pixels``) is checked from the stream 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import queue
@@ -37,10 +38,10 @@ from .atomic import publish, remove_stale_temporaries, write_json_atomic, write_
 from .content import DEFAULT_CONTENT, content_stream, parse_content_mode
 from .errors import InputError, OptionError
 from .frames import encode_image
-from .limits import DEFAULT_FPS, MAX_FPS, max_pixels_setting
+from .limits import DEFAULT_FPS, MAX_FPS, max_gap_frames_setting, max_pixels_setting
 from .methods.base import FrameResult, Method
 from .provenance import library_versions
-from .slam_layout import camera_setting, clip_camera, write_slam_layout
+from .slam_layout import CAMERA_FILES, TIMES_FILE, TUM_RGB_FILE, camera_setting, clip_camera, write_slam_layout
 from .sources import clip_frames
 from .streaming import enhance_frames
 from .video import DecodedFrame, DecodeReport, VideoWriter
@@ -102,6 +103,9 @@ class ClipOptions:
     camera: tuple[str, str] | None = None  # (file name, text) of a DSO/COLMAP camera file to copy (slam_layout)
     #: Largest frame (width x height) decoded; larger clips fail from their header. Default: limits.max_pixels_setting()
     max_pixels: int = field(default_factory=max_pixels_setting)
+    #: Most copies of one frame a timestamp gap may add; past it the clip fails (limits.max_gap_frames_setting()).
+    #: Not in the settings record: it decides whether a clip fails, never a byte of a clip that is done.
+    max_gap_frames: int = field(default_factory=max_gap_frames_setting)
     content: str = DEFAULT_CONTENT  # auto: the method sees the field of view less fixed text (colonlight.content)
 
     def __post_init__(self) -> None:
@@ -114,6 +118,8 @@ class ClipOptions:
             raise OptionError(f"fps must be within 0..{MAX_FPS:g}, got {self.fps:g}")
         if self.max_pixels < 1:
             raise OptionError(f"max_pixels must be >= 1, got {self.max_pixels}")
+        if self.max_gap_frames < 1:
+            raise OptionError(f"max_gap_frames must be >= 1, got {self.max_gap_frames}")
         if not (self.frames or self.video):
             raise OptionError("nothing to write: enable frames or video")
 
@@ -270,9 +276,10 @@ def enhance_clip(
 ) -> ClipResult:
     """Enhance one clip (a video file or a folder of frames) into ``out_dir``; ``gammas.json`` is written last.
 
-    Raises :class:`InputError` (one line naming the file and the cause) for unusable input; partial outputs of
-    this clip are then left without a ``gammas.json`` and a rerun redoes the clip. A clip that fails before
-    writing a frame leaves no empty folder behind.
+    Raises :class:`InputError` (one line naming the file and the cause) for unusable input. A clip that fails,
+    at its first frame or part way (a frame size change, a write error, a bug), leaves nothing half-written: the
+    frames and video it had published are removed (:func:`discard_partial_outputs`), with the folders it made.
+    An interrupt (Ctrl-C, SIGTERM) keeps the frames already on disk, which are whole; a rerun redoes the clip.
     """
     created: list[Path] = []  # folders this call creates (out_dir, its missing parents): removed if left empty
     folder = Path(out_dir)
@@ -281,10 +288,33 @@ def enhance_clip(
         folder = folder.parent
     try:
         return _enhance_clip(source, out_dir, method, opts, clip_name=clip_name, on_frame=on_frame)
+    except Exception:
+        discard_partial_outputs(Path(out_dir))
+        if created:
+            _remove_if_empty([Path(out_dir) / FRAMES_DIR, *created])
+        raise
     except BaseException:
         if created:
             _remove_if_empty([Path(out_dir) / FRAMES_DIR, *created])
         raise
+
+
+def discard_partial_outputs(out_dir: Path) -> None:
+    """Remove what a clip that failed had published (numbered frames, video, SLAM listings, temporaries), so
+    that a failed clip leaves nothing half-written and frees the room it took; its ``gammas.json`` is already
+    gone (it is removed before the first write), and a rerun writes everything again. Other files are kept."""
+    remove_stale_temporaries(out_dir)
+    frames_dir = out_dir / FRAMES_DIR
+    with contextlib.suppress(OSError):
+        for p in frames_dir.iterdir():
+            if p.name.partition(".")[0].isdigit():
+                p.unlink(missing_ok=True)
+    for name in (VIDEO_FILE, TIMES_FILE, TUM_RGB_FILE, *CAMERA_FILES):  # the frames' video and SLAM listings
+        with contextlib.suppress(OSError):
+            (out_dir / name).unlink(missing_ok=True)
+    for folder in (frames_dir, out_dir):
+        with contextlib.suppress(OSError):
+            folder.rmdir()  # only if now empty
 
 
 def _remove_if_empty(folders: list[Path]) -> None:
@@ -325,6 +355,7 @@ def _enhance_clip(
         min_frames=MIN_FRAMES,
         max_pixels=opts.max_pixels,
         report=report,
+        max_gap_frames=opts.max_gap_frames,
     )
     decoded = _prefetch(frames, stop)
     # Hold two frames before writing anything, so that a clip too short to enhance leaves nothing behind.

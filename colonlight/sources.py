@@ -51,6 +51,7 @@ def clip_frames(
     min_frames: int = 0,
     max_pixels: int | None = None,
     report: DecodeReport | None = None,
+    max_gap_frames: int | None = None,
 ) -> Iterator[DecodedFrame]:
     """Frames of a clip in order: a video resampled to ``fps`` (``None``/0 keeps all), or every image of a folder.
 
@@ -58,10 +59,16 @@ def clip_frames(
     ``min_frames`` counts *source* frames (a single still shown for a second would otherwise give 18 outputs)
     and raises :class:`InputError` before anything is yielded when the clip has fewer. Frames of more than
     ``max_pixels`` pixels (None: the configured cap) are refused from their header, before they are decoded.
-    A video's ``report`` learns what decoding found besides frames (a truncated file, damaged packets).
+    A video's ``report`` learns what decoding found besides frames (a truncated file, damaged packets); a
+    timestamp gap repeating a frame more than ``max_gap_frames`` times (None: the configured cap) fails it.
     """
     if clip_kind(path) == "video":
         return iter_video_frames(
-            Path(path), fps=fps or None, min_frames=min_frames, max_pixels=max_pixels, report=report
+            Path(path),
+            fps=fps or None,
+            min_frames=min_frames,
+            max_pixels=max_pixels,
+            max_gap_frames=max_gap_frames,
+            report=report,
         )
     return iter_image_folder(Path(path), fps=folder_fps, min_frames=min_frames, max_pixels=max_pixels)

@@ -44,6 +44,13 @@ class Settings(BaseSettings):
         description="Uploads received at once; more get 503. Counted apart from the job queue: "
         "a job is admitted only once its upload is complete.",
     )
+    header_timeout_seconds: float = Field(
+        10.0,
+        gt=0,
+        description="A request whose headers are not complete this long after the connection opened (or after the "
+        "previous response on it) gets 408 and is closed: a client sending its headers slowly (slowloris) "
+        "cannot hold a connection. Applies under `colonlight serve`.",
+    )
     upload_idle_seconds: float = Field(
         30.0,
         gt=0,

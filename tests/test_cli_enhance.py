@@ -351,8 +351,9 @@ def test_frames_are_published_in_order_whatever_order_the_pool_encodes_them(
 def test_a_failing_frame_leaves_a_gap_free_prefix_and_no_temporaries(
     tmp_path: Path, random_weights: Path, monkeypatch: pytest.MonkeyPatch, method_name: str
 ) -> None:
-    """A frame that cannot be encoded stops the clip: the frames on disk are 000000..k for some k before it
-    (never a hole), no temporary file is left, no gammas.json, and the error is the real one."""
+    """A frame that cannot be encoded stops the clip: the frames published were 000000..k for some k before it
+    (never a hole), and once it failed they are removed with it (nothing half-written): no frame, no temporary
+    file, no gammas.json, no folder; the error is the real one."""
     from colonlight import pipeline
     from colonlight.methods import create_method
 
@@ -376,11 +377,9 @@ def test_a_failing_frame_leaves_a_gap_free_prefix_and_no_temporaries(
     out = tmp_path / "out"
     with pytest.raises(OSError, match="simulated"):
         pipeline.enhance_clip(clip, out, create_method(method_name, **options), pipeline.ClipOptions(format="png"))
-    names = sorted(p.name for p in (out / "frames").iterdir())
-    assert names == [f"{i:06d}.png" for i in range(len(names))] == renamed
-    assert len(names) < 12 + pipeline._WRITERS  # never past the frame that failed (the 12th encoded)
-    assert not [p for p in out.rglob("*") if "colonlight-tmp" in p.name]
-    assert not (out / "gammas.json").exists()
+    assert renamed == [f"{i:06d}.png" for i in range(len(renamed))]  # published in order, never a hole
+    assert len(renamed) < 12 + pipeline._WRITERS  # never past the frame that failed (the 12th encoded)
+    assert not out.exists()  # what it had published is gone with the folder it made
 
 
 def test_an_abort_from_the_method_stops_the_writers_cleanly(

@@ -1,8 +1,10 @@
 """A truncated container of any kind is a clear failure or a ``done`` clip flagged ``truncated``, never silent.
 
 Files are cut at several offsets, as an interrupted copy or recording leaves them. Container metadata (the
-RIFF size of an AVI, the Segment size of Matroska/WebM, whole MPEG-TS packets, the sample index of an MP4) is used
-to warn; the frames are always those that decode, never a count the container claims.
+RIFF size of an AVI, the Segment size of Matroska/WebM or its elements' sizes in a live recording, whole MPEG-TS
+packets, MPEG-PS pack and PES lengths, the sample index or the box sizes of an MP4) is used to warn; the frames
+are always those that decode, never a count the container claims. (A cut exactly between two MPEG-PS packs, or
+two Matroska elements of a live recording, leaves no trace in the sizes: the offsets below are not such cuts.)
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ from .media import ffmpeg_exe, make_clip, needs_ffmpeg, truncated_copy
 
 MPEG4 = ("-c:v", "mpeg4", "-q:v", "2")
 VP8 = ("-c:v", "libvpx", "-b:v", "1M")
+MPEG2 = ("-c:v", "mpeg2video", "-q:v", "2")
+FRAGMENTED = ("-movflags", "frag_keyframe+empty_moov", "-g", "10")
 
 CONTAINERS: dict[str, Callable[[Path], Path]] = {
     "mp4": lambda d: make_clip(d / "c.mp4", 50, 25),
@@ -32,6 +36,13 @@ CONTAINERS: dict[str, Callable[[Path], Path]] = {
     "avi": lambda d: make_clip(d / "c.avi", 50, 25, codec_args=MPEG4),
     "avi_audio": lambda d: make_clip(d / "ca.avi", 50, 25, codec_args=MPEG4, audio=True),
     "webm": lambda d: make_clip(d / "c.webm", 50, 25, codec_args=VP8),
+    # a fragmented mp4 (recorders and live encoders write them): no index to check, its boxes' sizes warn
+    "mp4_fragmented": lambda d: make_clip(d / "frag.mp4", 50, 25, audio=True, output_args=FRAGMENTED),
+    # a live Matroska recording: the Segment's size is unknown, its elements' sizes warn
+    "mkv_live": lambda d: make_clip(d / "live.mkv", 50, 25, output_args=("-live", "1")),
+    # MPEG program streams: a DVD-style .vob with audio and a plain .mpg; the PES packet lengths warn
+    "mpg": lambda d: make_clip(d / "c.mpg", 50, 25, codec_args=MPEG2),
+    "vob": lambda d: make_clip(d / "c.vob", 50, 25, codec_args=MPEG2, audio=True, output_args=("-c:a", "mp2")),
 }
 CUTS = (0.3, 0.6, 0.9)
 
@@ -71,22 +82,27 @@ def test_truncated_files_fail_clearly_or_are_flagged(
         assert message.startswith(str(cut)) and "\n" not in message
         assert "truncated" in message or "corrupt" in message, message
         return
-    assert count < 50
+    assert count <= 50  # (a cut in the audio or the index at the end may leave every frame)
     assert report.truncated, f"{name} cut to {keep:.0%}: {count} frames and no truncation found"
     assert any(w.startswith("truncated:") and f"{count} frames" in w for w in report.warnings)
 
 
 @needs_ffmpeg
-def test_cli_marks_a_truncated_clip_done_and_truncated_with_a_warning(sources: dict[str, Path], tmp_path: Path) -> None:
+@pytest.mark.parametrize("name", ["mkv", "mpg"])  # each was done silently: 10 of 50 frames, 17 of 50
+def test_cli_marks_a_truncated_clip_done_and_truncated_with_a_warning(
+    sources: dict[str, Path], tmp_path: Path, name: str
+) -> None:
     videos = tmp_path / "videos"
     videos.mkdir()
-    truncated_copy(sources["mkv"], videos / "cut.mkv", 0.3)  # the case that was done silently, 10 of 50 frames
-    (videos / "whole.mkv").write_bytes(sources["mkv"].read_bytes())
+    suffix = sources[name].suffix
+    truncated_copy(sources[name], videos / f"cut{suffix}", 0.3)
+    (videos / f"whole{suffix}").write_bytes(sources[name].read_bytes())
     out = tmp_path / "out"
     result = CliRunner().invoke(app, ["enhance", str(videos), "-o", str(out), "--method", "none", "-q"])
     assert result.exit_code == 0, result.output
     warnings = [line for line in result.output.splitlines() if line.startswith("warning")]
-    assert len(warnings) == 1 and str(videos / "cut.mkv") in warnings[0] and "truncated" in warnings[0]
+    assert warnings and all(str(videos / f"cut{suffix}") in w for w in warnings)  # (a cut mpg also: damaged)
+    assert sum(": truncated: " in w for w in warnings) == 1, warnings
     gammas = json.loads((out / "cut" / "gammas.json").read_text())
     assert gammas["truncated"] is True and gammas["warnings"][0].startswith("truncated:")
     assert list(gammas)[-1] == "frames"  # added fields come before the frame list
