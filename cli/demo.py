@@ -63,7 +63,8 @@ def demo(
     result = jobs[0].out_dir
     gammas = [f["gamma"] for f in json.loads((result / "gammas.json").read_text())["frames"]]
     console.print(
-        f"\n[bold]colonlight demo done[/]: {len(gammas)} frames extracted at {DEFAULT_FPS:g} fps from a {DEMO_FPS:g} fps clip, "
+        f"\n[bold]colonlight demo done[/]: {len(gammas)} frames extracted at {DEFAULT_FPS:g} fps from a "
+        f"{DEMO_FPS:g} fps clip, "
         f"gamma {min(gammas):.2f}..{max(gammas):.2f}\n"
         f"  input clip      {video_path}\n"
         f"  enhanced frames {result / 'frames'}/\n"

@@ -3,6 +3,7 @@ real time into a frame folder, ``gammas.jsonl`` and/or a pipe on standard output
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import sys
 from pathlib import Path
@@ -91,7 +92,8 @@ def stream(
     source: str | None = typer.Argument(
         None,
         metavar="SRC",
-        help="/dev/videoN, a udp:// tcp:// http:// rtsp:// rtmp:// URL, a video file, or - for a container stream (MPEG-TS, Matroska, raw H.264) on standard input.",
+        help="/dev/videoN, a udp:// tcp:// http:// rtsp:// rtmp:// URL, a video file, or - for a container stream "
+        "(MPEG-TS, Matroska, raw H.264) on standard input.",
     ),
     output: Path | None = typer.Option(
         None, "--output", "-o", help="Folder for frames/, gammas.jsonl (one line per frame, flushed) and stream.json."
@@ -132,7 +134,8 @@ def stream(
     drop: str = typer.Option(
         "auto",
         "--drop",
-        help="When processing falls behind: oldest (drop the oldest waiting frame) | newest | never (wait; a file's default) | auto.",
+        help="When processing falls behind: oldest (drop the oldest waiting frame) | newest | never (wait; a file's "
+        "default) | auto.",
     ),
     buffer: int = typer.Option(
         DEFAULT_BUFFER, "--buffer", min=1, max=64, help="Frames that may wait for processing before drops start."
@@ -140,7 +143,8 @@ def stream(
     reconnect: bool = typer.Option(
         False,
         "--reconnect",
-        help=f"Reopen a lost or ended network stream or device, with backoff ({BACKOFF_START_S:g} s doubling to {BACKOFF_MAX_S:g} s); the recurrent state is kept.",
+        help=f"Reopen a lost or ended network stream or device, with backoff ({BACKOFF_START_S:g} s doubling to "
+        f"{BACKOFF_MAX_S:g} s); the recurrent state is kept.",
     ),
     timeout: float = typer.Option(
         DEFAULT_TIMEOUT_S, "--timeout", min=0.1, help="Seconds without data before a live source counts as lost."
@@ -152,7 +156,8 @@ def stream(
     input_option: list[str] = typer.Option(
         [],
         "--input-option",
-        help="KEY=VALUE passed to FFmpeg when opening SRC (repeatable), e.g. video_size=1280x720, framerate=30, rtsp_transport=udp.",
+        help="KEY=VALUE passed to FFmpeg when opening SRC (repeatable), e.g. video_size=1280x720, framerate=30, "
+        "rtsp_transport=udp.",
     ),
     list_devices: bool = typer.Option(False, "--list-devices", help="List the capture devices and exit."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace the outputs of an earlier stream in OUTPUT."),
@@ -254,10 +259,8 @@ def _quiet_stdout() -> None:
     """After the pipe's reader has gone, point stdout at /dev/null so the interpreter's last flush cannot fail."""
     import os
 
-    try:
+    with contextlib.suppress(BrokenPipeError, ValueError, OSError):
         sys.stdout.flush()
-    except (BrokenPipeError, ValueError, OSError):
-        pass
     devnull = os.open(os.devnull, os.O_WRONLY)
     os.dup2(devnull, sys.stdout.fileno())
     os.close(devnull)

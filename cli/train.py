@@ -91,7 +91,8 @@ def train_cmd(
         "--synthetic-occluders",
         min=0.0,
         max=1.0,
-        help="Fraction of synthetic clips forced to have a close-occluder moment (otherwise each clip has one by chance, 35%).",
+        help="Fraction of synthetic clips forced to have a close-occluder moment (otherwise each clip has one by "
+        "chance, 35%).",
     ),
     synthetic_clean_seeds: float = typer.Option(
         0.0,
@@ -189,7 +190,8 @@ def train_cmd(
                 synthetic_clean_seeds,
             )
             extra["validation_data"] = (
-                f"synthetic: {synthetic_val} clips, seeds {synthetic_seed + synthetic}..{synthetic_seed + synthetic + synthetic_val - 1}"
+                f"synthetic: {synthetic_val} clips, seeds {synthetic_seed + synthetic}.."
+                f"{synthetic_seed + synthetic + synthetic_val - 1}"
             )
     if not train_clips:
         raise typer.BadParameter("give clips to train on, or --synthetic N")

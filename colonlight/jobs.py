@@ -9,7 +9,6 @@ clip is enhanced, skipped and failed the same way everywhere. This module sits b
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import os
 import time

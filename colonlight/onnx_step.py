@@ -209,7 +209,7 @@ def export_model_bytes(weights: LoadedWeights, size: int) -> tuple[bytes, StepSi
 def cpu_session(model: bytes | str | Path, threads: int = 1) -> Any:
     """An ONNX Runtime CPU session as colonlight runs the step: ``threads`` intra-op threads, one inter-op thread,
     sequential execution and no spinning (a spinning idle thread would take the core decoding and encoding need)."""
-    import onnxruntime as ort  # type: ignore[import-untyped]
+    import onnxruntime as ort
 
     so = ort.SessionOptions()
     so.intra_op_num_threads = threads

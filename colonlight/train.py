@@ -178,7 +178,8 @@ def start_curve(clean: np.ndarray, recorded: np.ndarray) -> np.ndarray:
     r_cdf = np.cumsum(r_count) / r_count.sum()
     matched = np.minimum(np.searchsorted(r_cdf, c_mid - 1e-12, side="left"), 255)
     table = np.interp(np.arange(256), used, matched.astype(np.float64))
-    return np.clip(np.rint(table), 0, 255).astype(np.uint8)
+    out: np.ndarray = np.clip(np.rint(table), 0, 255).astype(np.uint8)
+    return out
 
 
 class SequenceSet:
