@@ -22,8 +22,6 @@ __version__ = "0.1.0"
 _EXPORTS: dict[str, str] = {
     "ManifestError": "batch",
     "default_workers": "batch",
-    "network_threads": "batch",
-    "reuse_frame_memory": "batch",
     "run_batch": "batch",
     "warm_method": "batch",
     "LoadedWeights": "checkpoint",
@@ -62,10 +60,13 @@ _EXPORTS: dict[str, str] = {
     "iter_enhanced": "pipeline",
     "read_camera": "slam_layout",
     "enhance_frames": "streaming",
+    "network_threads": "tuning",
+    "reuse_frame_memory": "tuning",
+    "tune_for_clips": "tuning",
 }
 
 if TYPE_CHECKING:
-    from .batch import ManifestError, default_workers, network_threads, reuse_frame_memory, run_batch, warm_method
+    from .batch import ManifestError, default_workers, run_batch, warm_method
     from .checkpoint import LoadedWeights, load_weights, save_weights
     from .curves import apply_gamma, apply_lut, gamma_lut
     from .device import resolve_device
@@ -78,6 +79,7 @@ if TYPE_CHECKING:
     from .pipeline import ClipOptions, ClipResult, enhance_clip, iter_enhanced
     from .slam_layout import read_camera
     from .streaming import enhance_frames
+    from .tuning import network_threads, reuse_frame_memory, tune_for_clips
 
 
 def __getattr__(name: str) -> Any:
@@ -136,5 +138,6 @@ __all__ = [
     "run_batch",
     "run_clip",
     "save_weights",
+    "tune_for_clips",
     "warm_method",
 ]

@@ -50,6 +50,7 @@ def test_all_is_sorted_and_pinned() -> None:
         "run_batch",
         "run_clip",
         "save_weights",
+        "tune_for_clips",
         "warm_method",
     ]
     for name in colonlight.__all__:
