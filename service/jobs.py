@@ -21,8 +21,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from colonlight import ClipOptions, ColonlightError, MethodSpec
-from colonlight.video import VideoInfo
+from colonlight import ClipOptions, ColonlightError, MethodSpec, VideoInfo
 
 from .admission import Admission, JobBoard
 from .errors import ApiError

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import anyio
 
-from colonlight import ColonlightError
-from colonlight.video import VideoInfo, probe_video
+from colonlight import ColonlightError, VideoInfo, probe_video
 
 from .errors import ApiError
 from .header_probe import declared_frame_size

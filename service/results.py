@@ -8,9 +8,7 @@ import threading
 import zipfile
 from pathlib import Path
 
-from colonlight import ClipJob, ClipOutcome
-from colonlight.atomic import atomic_path, write_json_atomic
-from colonlight.pipeline import GAMMAS_FILE, VIDEO_FILE
+from colonlight import GAMMAS_FILE, VIDEO_FILE, ClipJob, ClipOutcome, atomic_path, write_json_atomic
 
 from .errors import is_disk_full
 from .runners import DISK_FULL, NO_SPACE

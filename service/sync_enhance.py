@@ -13,10 +13,8 @@ from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
-from colonlight import ClipJob, ClipOptions, ClipOutcome, MethodSpec
+from colonlight import GAMMAS_FILE, VIDEO_FILE, ClipJob, ClipOptions, ClipOutcome, MethodSpec, VideoInfo
 from colonlight.limits import MAX_FPS
-from colonlight.pipeline import GAMMAS_FILE, VIDEO_FILE
-from colonlight.video import VideoInfo
 
 from .admission import Admission, JobBoard
 from .errors import ApiError, storage_full
