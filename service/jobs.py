@@ -18,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import threading
+from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import Any
 
@@ -51,7 +52,6 @@ class JobManager:
     def __init__(self, settings: Settings) -> None:
         self.settings = settings
         self.workspace = Workspace(settings.data_dir)
-        self.root = self.workspace.root
         self.metrics = Metrics()
         self.methods = MethodCache(settings.method_cache)
         self.model = ModelStatus()
@@ -175,8 +175,8 @@ class JobManager:
 
     # ------------------------------------------------------------------------------------------ the routes' API
 
-    def receiving(self) -> Any:
-        """See :meth:`JobBoard.receiving`."""
+    def receiving(self) -> AbstractContextManager[None]:
+        """An upload place while an upload is received and checked (:meth:`JobBoard.receiving`), or 503."""
         return self.board.receiving()
 
     def admit(self) -> Admission:
@@ -187,9 +187,6 @@ class JobManager:
 
     async def probe(self, upload: Upload) -> VideoInfo:
         return await self.probing.probe(upload)
-
-    def job_dir(self, job_id: str) -> Path:
-        return self.workspace.job_dir(job_id)
 
     async def create_job(self, admission: Admission, upload: Upload, options: JobOptions) -> JobRecord:
         opts = self.resolved(options)
