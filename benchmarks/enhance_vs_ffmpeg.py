@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from colonlight.limits import available_cores
+
 from .common import markdown_table
 
 REPEATS = int(os.environ.get("COLONLIGHT_BENCH_REPEATS", "3"))
@@ -263,7 +265,7 @@ def main() -> str:
             "",
             markdown_table(["clip", "frames", "seconds", "max RSS MiB"], mem),
             "",
-            f"{os.cpu_count()} cores; load average at the end (1 / 5 / 15 min): {load}.",
+            f"{available_cores()} cores; load average at the end (1 / 5 / 15 min): {load}.",
         ]
     )
 

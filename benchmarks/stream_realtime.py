@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from colonlight.limits import available_cores
+
 from .common import markdown_table
 
 SRC_FPS = 30
@@ -348,7 +350,7 @@ def main(argv: list[str] | None = None) -> str:
             markdown_table(["stage", "CPU ms/frame", "frames/s", "share of one core"], costs),
             "",
             "Latency on a machine with a core to spare is about the processing loop's time per frame. "
-            f"{os.cpu_count()} cores; load average (1 / 5 / 15 min) at the end: "
+            f"{available_cores()} cores; load average (1 / 5 / 15 min) at the end: "
             + " / ".join(f"{x:.1f}" for x in os.getloadavg())
             + ".",
         ]

@@ -27,6 +27,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from colonlight.limits import available_cores
+
 from .common import REPO, markdown_table
 from .service_load import percentile, weights_for_benchmark
 
@@ -199,7 +201,7 @@ def main(argv: list[str] | None = None) -> str:
         (
             f"Real `colonlight serve` on loopback, method {label}, {w}x{h} JPEG frames (quality 90) in and out, "
             f"{args.depth} frame(s) in flight per client, {args.frames} timed frames per client after "
-            f"{WARMUP_FRAMES} warm-up frames; a fresh server per row; {os.cpu_count()} cores."
+            f"{WARMUP_FRAMES} warm-up frames; a fresh server per row; {available_cores()} cores."
         ),
         "",
     ]

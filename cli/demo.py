@@ -14,7 +14,6 @@ from .display import BatchDisplay, console, error_line
 
 DEMO_SEED = 20210628  # the clip is rendered from "heldout" settings, never used to train the default model
 DEMO_FPS = 30.0  # the rate the clip is rendered at, as a recorder's; enhance takes DEFAULT_FPS of it
-DEFAULT_FPS = ClipOptions().fps or 0.0  # the rate enhance extracts frames at (the paper's 18)
 
 
 def demo(

@@ -16,6 +16,7 @@ from colonlight import (
     ColonlightError,
     ManifestError,
     MethodSpec,
+    OptionError,
     OutputError,
     available_methods,
     default_workers,
@@ -63,6 +64,7 @@ def _stop_signals_interrupt() -> Iterator[list[int]]:
 
 
 def enhance(
+    ctx: typer.Context,
     inputs: list[Path] = typer.Argument(
         ..., help="Video files and/or folders (walked recursively; a folder of images is one clip)."
     ),
@@ -76,11 +78,12 @@ def enhance(
         help="Extraction rate (FFmpeg fps-filter frame choice); 0 keeps every frame.",
     ),
     method: str = options.Method,
-    weights: Path | None = options.Weights,
+    # the method options: values checked by their declaration, read through options.method_kwargs
+    weights: str | None = options.Weights,
     model_size: str | None = options.ModelSize,
-    gamma: float | None = typer.Option(None, "--gamma", help="Exponent for --method gamma (out = in ** gamma)."),
-    device: str = options.Device,
-    runtime: str = options.Runtime,
+    gamma: str | None = options.Gamma,
+    device: str | None = options.Device,
+    runtime: str | None = options.Runtime,
     content: str = options.Content,
     frames: bool = typer.Option(True, "--frames/--no-frames", help="Write enhanced frame images."),
     video: bool = typer.Option(
@@ -136,9 +139,9 @@ def enhance(
             max_pixels=max_pixels,
             content=content,
         )
-    except ValueError as exc:
+    except OptionError as exc:
         raise typer.BadParameter(str(exc)) from exc
-    spec = MethodSpec.of(method, **options.method_options(method, weights, model_size, device, gamma, runtime))
+    spec = MethodSpec.of(method, **options.method_kwargs(ctx, method)[method])
     with _stop_signals_interrupt() as received:
         try:
             failed = _run(inputs, output, spec, clip_opts, pattern, workers, cluster, overwrite, quiet, debug)

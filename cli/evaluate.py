@@ -166,7 +166,7 @@ def evaluate(
         typer.Option(
             "--family",
             help="Synthetic settings: train (the generator's training ranges, unseen seeds; trackable motion) "
-            "or heldout (knobs pushed outside them, often faster than a tracker can follow at 18 fps).",
+            f"or heldout (knobs pushed outside them, often faster than a tracker can follow at {DEFAULT_FPS:g} fps).",
         ),
     ] = "train",
     size: Annotated[int, typer.Option("--size", min=32, help="Side of the synthetic frames in pixels.")] = 256,
@@ -194,8 +194,7 @@ def evaluate(
         ),
     ] = True,
     fps: Annotated[
-        float,
-        typer.Option("--fps", min=0.0, help="Extraction rate of videos (FFmpeg fps-filter choice); 0 keeps all."),
+        float, typer.Option("--fps", help="Extraction rate of videos (FFmpeg fps-filter choice); 0 keeps all.")
     ] = DEFAULT_FPS,
     max_size: Annotated[
         int,
@@ -204,7 +203,12 @@ def evaluate(
     max_frames: Annotated[
         int, typer.Option("--max-frames", min=0, help="Evaluate at most this many frames per clip (0: all).")
     ] = 0,
-    device: str = options.Device,
+    # the method options, as enhance takes them: each goes to the methods in --methods that take it
+    weights: str | None = options.Weights,
+    model_size: str | None = options.ModelSize,
+    gamma: str | None = options.Gamma,
+    device: str | None = options.Device,
+    runtime: str | None = options.Runtime,
     threads: Annotated[
         int,
         typer.Option("--threads", min=1, help="Torch/OpenCV threads while evaluating (cost measured alike)."),
@@ -234,6 +238,7 @@ def evaluate(
     )
 
     names = _method_names(methods)
+    options.check_fps(fps)
     if family not in ("train", "heldout"):
         raise typer.BadParameter("choose train or heldout", param_hint="--family")
     if brightness not in ("fixed", "affine", "both"):
@@ -245,7 +250,8 @@ def evaluate(
         raise typer.Exit(2) from None
     if not inputs and not synthetic:
         raise typer.BadParameter("give clips to evaluate, or --synthetic N", param_hint="INPUTS")
-    specs = method_list(names, authors_checkpoint, device)
+    rows = [*names, *(["rnn"] if authors_checkpoint is not None and "rnn" not in names else [])]
+    specs = method_list(names, authors_checkpoint, chosen=options.method_kwargs(ctx, *rows))
     if authors_checkpoint is not None and not authors_checkpoint.is_file():
         console.print(f"[yellow]note[/]: the authors' checkpoint {authors_checkpoint} is not a file")
 

@@ -6,7 +6,9 @@ from pathlib import Path
 
 import typer
 
-from colonlight.errors import ColonlightError
+from colonlight.errors import ColonlightError, OptionError
+from colonlight.limits import MAX_MODEL_SIZE, MIN_MODEL_SIZE
+from colonlight.methods.options import option
 
 from . import options
 from .display import console, error_line
@@ -14,13 +16,21 @@ from .display import console, error_line
 
 def export(
     output: Path = typer.Option(..., "--output", "-o", help="The .onnx file to write; its sidecar is OUTPUT.json."),
-    weights: Path | None = options.Weights,
+    weights: Path | None = typer.Option(
+        None,
+        "--weights",
+        "-w",
+        envvar="COLONLIGHT_WEIGHTS",
+        help="The rnn checkpoint: ours (.safetensors with its .json card) or the authors' .pth. Default: the "
+        "shipped model.",
+    ),
     model_size: str | None = typer.Option(
         None,
         "--model-size",
         envvar="COLONLIGHT_MODEL_SIZE",
-        help="Network input size in pixels the graph is fixed at, or 'auto' (the default): the size the weights "
-        "were trained at (their card; 48 for the shipped model), else 48. 'full' cannot be exported.",
+        help=f"Network input size in pixels the graph is fixed at ({MIN_MODEL_SIZE}..{MAX_MODEL_SIZE}), or 'auto' "
+        "(the default): the size the weights were trained at (their card; 48 for the shipped model), else 48. "
+        "'full' cannot be exported.",
     ),
     debug: bool = options.Debug,
 ) -> None:
@@ -30,11 +40,12 @@ def export(
         from colonlight.methods.rnn import parse_model_size
         from colonlight.onnx_export import export_onnx, sidecar_path
 
-        loaded = load_weights(weights)
         try:
-            size = parse_model_size(model_size or "auto", trained_at=loaded.input_size)
-        except ValueError as exc:
+            checked = option("model_size").parse(model_size or "auto")  # the range enhance and the service take
+        except OptionError as exc:
             raise typer.BadParameter(str(exc), param_hint="--model-size") from None
+        loaded = load_weights(weights)
+        size = parse_model_size(checked, trained_at=loaded.input_size)
         if size is None:
             raise typer.BadParameter(
                 "the graph has a fixed input size: give a number or 'auto'", param_hint="--model-size"

@@ -1,38 +1,77 @@
-"""Options shared by several commands (same names, help and environment variables everywhere)."""
+"""Options shared by several commands (same names, help and environment variables everywhere).
+
+The method options (``--weights``, ``--model-size``, ``--gamma``, ``--device``, ``--runtime``) are built from
+the methods' one declaration, :mod:`colonlight.methods.options`, as the service's request fields are.
+"""
 
 from __future__ import annotations
 
-from pathlib import Path
+from typing import Any
 
 import typer
 
+from colonlight.errors import MethodOptionError
 from colonlight.limits import DEFAULT_MAX_PIXELS, MAX_FPS, MAX_PIXELS_ENV
+from colonlight.methods.options import OPTIONS, methods_kwargs, option
 
-Device = typer.Option("auto", "--device", envvar="COLONLIGHT_DEVICE", help="auto | cpu | cuda | cuda:N.")
 Method = typer.Option(
     "rnn", "--method", "-m", envvar="COLONLIGHT_METHOD", help="Enhancement method (see `colonlight info`)."
 )
-Weights: Path | None = typer.Option(
-    None,
-    "--weights",
-    "-w",
-    envvar="COLONLIGHT_WEIGHTS",
-    help="Checkpoint: ours (.safetensors with its .json card) or the authors' .pth. Default: the shipped model.",
-)
-ModelSize = typer.Option(
-    None,
-    "--model-size",
-    envvar="COLONLIGHT_MODEL_SIZE",
-    help="Network input size in pixels, 'full' for full-resolution input (the release's way), or 'auto' (the "
-    "default): the size the weights were trained at (their card; 48 for the shipped model), else 48.",
-)
-Runtime = typer.Option(
-    "torch",
-    "--runtime",
-    envvar="COLONLIGHT_RUNTIME",
-    help="Where the rnn method's network step runs: torch, or onnxruntime (CPU; the export extra; measured faster "
-    "on small CPUs, see the README's benchmarks).",
-)
+#: Short flags of method options (the declaration names the long ones).
+_SHORT = {"weights": ("-w",)}
+_METAVAR = {"number": "NUMBER", "size": "PIXELS|full|auto", "path": "FILE"}
+
+
+def method_flag(name: str) -> Any:
+    """The typer option of the declared method option ``name`` (:mod:`colonlight.methods.options`): its flag,
+    environment variable and help come from the declaration, and so does the check of its value, so that a bad
+    value is refused with the service's message. Its value (canonical, e.g. a float for ``--gamma``) reaches a
+    command through :func:`method_kwargs`, which also refuses a flag the method does not take."""
+    opt = option(name)
+
+    def check(value: str | None) -> object:
+        if value is None:
+            return None
+        try:
+            return opt.parse(value)
+        except MethodOptionError as exc:
+            raise typer.BadParameter(str(exc)) from None
+
+    return typer.Option(
+        None,
+        opt.flag,
+        *_SHORT.get(name, ()),
+        envvar=opt.envvar,
+        help=opt.description,
+        metavar=_METAVAR.get(opt.kind, "|".join(opt.choices) or opt.name.upper()),
+        callback=check,
+        show_default=False,
+    )
+
+
+Weights = method_flag("weights")
+ModelSize = method_flag("model_size")
+Gamma = method_flag("gamma")
+Device = method_flag("device")
+Runtime = method_flag("runtime")
+
+
+def method_kwargs(ctx: typer.Context, *methods: str) -> dict[str, dict[str, object]]:
+    """Each of ``methods``' keyword options from the command's method flags: a flag on the command line that
+    none of them takes is a usage error; a value from the environment (``COLONLIGHT_GAMMA``) is used where it
+    applies and ignored elsewhere."""
+    given: dict[str, object] = {}
+    fallback: dict[str, object] = {}
+    for opt in OPTIONS:
+        if opt.name in ctx.params:
+            from_line = getattr(ctx.get_parameter_source(opt.name), "name", None) == "COMMANDLINE"
+            (given if from_line else fallback)[opt.name] = ctx.params[opt.name]
+    try:
+        return dict(methods_kwargs(methods, given, fallback))
+    except MethodOptionError as exc:
+        raise typer.BadParameter(str(exc), param_hint=option(exc.option).flag) from None
+
+
 MaxPixels = typer.Option(
     DEFAULT_MAX_PIXELS,
     "--max-pixels",
@@ -52,39 +91,6 @@ Debug = typer.Option(False, "--debug", envvar="COLONLIGHT_DEBUG", help="Show tra
 Quiet = typer.Option(
     False, "--quiet", "-q", envvar="COLONLIGHT_QUIET", help="No live display: one line per clip, for logs."
 )
-
-
-def method_options(
-    method: str,
-    weights: Path | None,
-    model_size: str | None,
-    device: str,
-    gamma: float | None = None,
-    runtime: str | None = None,
-) -> dict[str, object]:
-    """The keyword options of ``method`` from the CLI's flags (flags a method does not take are refused)."""
-    opts: dict[str, object] = {}
-    if method in ("rnn", "zerodce", "zerodce++"):
-        opts["device"] = device
-        if weights is not None:
-            opts["weights"] = str(weights)
-    elif weights is not None:
-        raise typer.BadParameter(f"--weights does not apply to method {method!r}")
-    if method == "rnn" and model_size is not None:
-        opts["model_size"] = model_size
-    elif model_size is not None:
-        raise typer.BadParameter(f"--model-size does not apply to method {method!r}")
-    if runtime not in (None, "torch", "onnxruntime"):
-        raise typer.BadParameter(f"choose torch or onnxruntime, got {runtime!r}", param_hint="--runtime")
-    if method == "rnn" and runtime == "onnxruntime":
-        opts["runtime"] = runtime
-    elif runtime == "onnxruntime":
-        raise typer.BadParameter("--runtime onnxruntime applies only to --method rnn")
-    if method == "gamma" and gamma is not None:
-        opts["gamma"] = gamma
-    elif gamma is not None:
-        raise typer.BadParameter("--gamma applies only to --method gamma")
-    return opts
 
 
 def invocation(ctx: typer.Context) -> str:

@@ -10,8 +10,16 @@ from typing import Any
 
 import typer
 
-from colonlight import ColonlightError, MethodSpec, available_methods, is_available, network_threads, reuse_frame_memory
-from colonlight.limits import DEFAULT_FPS, MAX_FPS
+from colonlight import (
+    ColonlightError,
+    MethodSpec,
+    OptionError,
+    available_methods,
+    is_available,
+    network_threads,
+    reuse_frame_memory,
+)
+from colonlight.limits import DEFAULT_FPS
 from colonlight.live import (
     DEFAULT_BUFFER,
     DEFAULT_TIMEOUT_S,
@@ -79,6 +87,7 @@ def _summary(summary: Any) -> None:
 
 
 def stream(
+    ctx: typer.Context,
     source: str | None = typer.Argument(
         None,
         metavar="SRC",
@@ -97,10 +106,12 @@ def stream(
         help="Output rate (FFmpeg fps-filter frame choice); 0 keeps every frame.",
     ),
     method: str = options.Method,
-    weights: Path | None = options.Weights,
+    # the method options: values checked by their declaration, read through options.method_kwargs
+    weights: str | None = options.Weights,
     model_size: str | None = options.ModelSize,
-    gamma: float | None = typer.Option(None, "--gamma", help="Exponent for --method gamma (out = in ** gamma)."),
-    device: str = options.Device,
+    gamma: str | None = options.Gamma,
+    device: str | None = options.Device,
+    runtime: str | None = options.Runtime,
     frames: bool = typer.Option(
         True, "--frames/--no-frames", help="Write enhanced frames into OUTPUT/frames/ (with --output)."
     ),
@@ -108,7 +119,8 @@ def stream(
         "jpg",
         "--format",
         "-f",
-        help="Frame image format: jpg (default: at 1080p a PNG costs ~20x the CPU of a JPEG, too much at 18 fps on 2 cores) | png.",
+        help="Frame image format: jpg (default: at 1080p a PNG costs ~20x the CPU of a JPEG, too much at "
+        f"{DEFAULT_FPS:g} fps on 2 cores) | png.",
     ),
     quality: int = typer.Option(95, "--quality", min=1, max=100, help="JPEG quality."),
     keep: int = typer.Option(0, "--keep", min=0, help="Keep only the newest N frames in OUTPUT/frames/ (0: all)."),
@@ -160,8 +172,7 @@ def stream(
         )
     if fmt not in ("png", "jpg"):
         raise typer.BadParameter("choose png or jpg", param_hint="--format")
-    if not 0 <= fps <= MAX_FPS:
-        raise typer.BadParameter(f"must be within 0..{MAX_FPS:g}", param_hint="--fps")
+    options.check_fps(fps)
 
     if pipe is not None and pipe not in PIPE_FORMATS:
         raise typer.BadParameter(f"choose {' or '.join(PIPE_FORMATS)}", param_hint="--pipe")
@@ -185,9 +196,9 @@ def stream(
             timeout_s=timeout,
             duration_s=duration,
         )
-    except ValueError as exc:
+    except OptionError as exc:
         raise typer.BadParameter(str(exc)) from exc
-    spec = MethodSpec.of(method, **options.method_options(method, weights, model_size, device, gamma))
+    spec = MethodSpec.of(method, **options.method_kwargs(ctx, method)[method])
     with imports_frozen():  # as in `enhance`
         engine = load_method_or_exit(spec, debug)  # a bad checkpoint or absent device: a usage error, as in `enhance`
         try:

@@ -39,7 +39,7 @@ def _synthetic_clips(
         width=render,
         height=render,
         n_frames=frames,
-        fps=18.0,
+        fps=DEFAULT_FPS,
         workers=2,
         video=False,
         steady_fraction=steady,
@@ -109,7 +109,9 @@ def train_cmd(
     objective: str = typer.Option(
         "paper",
         "--objective",
-        help="paper (unsupervised, the paper's loss) | restore (to the clean frames of synthetic clips) | hybrid (both).",
+        help="paper (unsupervised, the paper's loss) | restore (to the clean frames of synthetic clips) | "
+        "relative (to the clean frames as each window's first frame shows them: steady video is left alone) | "
+        "hybrid (restore and the paper's loss).",
     ),
     consistency: float = typer.Option(
         0.5, "--consistency", min=0.0, help="Weight of the paper's loss in --objective hybrid."
@@ -118,7 +120,7 @@ def train_cmd(
         0.0,
         "--temporal",
         min=0.0,
-        help="Weight of the restoration error's frame-to-frame change (--objective restore|hybrid): the output flickers no more than the clean frames.",
+        help="Weight of the restoration error's frame-to-frame change (--objective restore|relative|hybrid): the output flickers no more than the clean frames.",
     ),
     method: str = typer.Option("rnn", "--method", help="rnn (the paper's model) | zerodce | zerodce++ (baselines)."),
     size: int = typer.Option(48, "--size", min=16, help="Training input size (match the inference default, 48)."),
@@ -202,6 +204,7 @@ def train_cmd(
 
         init = str(DEFAULT_WEIGHTS)
     # Imported here, not at the top: other commands (enhance above all) do without torch's training side and kornia.
+    from colonlight.errors import OptionError
     from colonlight.train import TrainConfig, train
 
     try:
@@ -221,7 +224,7 @@ def train_cmd(
             consistency=consistency,
             temporal=temporal,
         )
-    except ValueError as exc:
+    except OptionError as exc:
         raise typer.BadParameter(str(exc)) from None
     with Progress(
         TextColumn("{task.description}"),

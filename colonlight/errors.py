@@ -7,6 +7,7 @@ Hierarchy::
     │   └── FrameTooLargeError   its frames exceed the pixel cap (known from the header, before decoding)
     │   └── FrameShapeError      a frame a method cannot take (not HxWx3 uint8, a size that changed mid-stream)
     ├── OptionError              a bad option value: a method's (unknown name, out of range), a clip's, a stream's
+    │   └── MethodOptionError    a declared method option (colonlight.methods.options) out of range or not applicable
     ├── CheckpointError          a weights file that is missing, corrupt, truncated or of an unknown format
     └── DeviceError              a requested device (e.g. ``cuda:1``) that this machine does not have
 
@@ -48,6 +49,18 @@ class FrameShapeError(InputError, ValueError):
 
 class OptionError(ColonlightError, ValueError):
     """An option value that cannot be used (a method, clip or stream option): the message names it and the range."""
+
+
+class MethodOptionError(OptionError):
+    """A method option a shell took from its user (``--gamma``, a request's ``gamma``) that cannot be used.
+
+    ``option`` is the option's name (``"gamma"``), so that a shell can point at its own spelling (``--gamma``);
+    the message is the same in every shell.
+    """
+
+    def __init__(self, option: str, message: str) -> None:
+        self.option = option
+        super().__init__(message)
 
 
 class CheckpointError(ColonlightError):

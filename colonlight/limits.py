@@ -21,6 +21,12 @@ MAX_PIXELS_ENV = "COLONLIGHT_MAX_PIXELS"
 #: The extraction rate when none is given (CLI, service, evaluation, training, a frame folder's assumed rate):
 #: the authors' ``ffmpeg -vf fps=18`` extraction, which their model was trained on.
 DEFAULT_FPS = 18.0
+#: The rnn method's network input side in pixels (``--model-size``, a request's ``model_size``): below 8 the
+#: encoder's strides leave nothing; above 1024 a step costs seconds on a CPU while ``full`` covers that need.
+MIN_MODEL_SIZE, MAX_MODEL_SIZE = 8, 1024
+#: Largest exponent of the ``gamma`` method (``out = in ** gamma``): at 10 all but the brightest pixels are black
+#: already, so a larger value is a typo.
+MAX_GAMMA = 10.0
 
 
 def available_cores() -> int:

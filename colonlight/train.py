@@ -33,7 +33,7 @@ from safetensors.torch import load_file, save_file
 from .atomic import atomic_path, write_json_atomic
 from .checkpoint import load_weights, save_weights
 from .correction import apply_curve, apply_gain_gamma, curve_slopes_from_raw, gain_gamma_from_raw
-from .errors import InputError
+from .errors import InputError, OptionError
 from .limits import DEFAULT_FPS
 from .methods.rnn import DEFAULT_MODEL_SIZE
 from .model import HEAD_OUTPUTS, GammaNet, correct, parameter_count
@@ -43,7 +43,7 @@ SPECULAR_THRESHOLD = 0.7
 SEEDS = 2
 #: Input samples at or above this are clipped by the recorder: they say nothing of the clean value.
 SATURATED = 0.98
-OBJECTIVES = ("paper", "restore", "hybrid")
+OBJECTIVES = ("paper", "restore", "relative", "hybrid")
 
 
 @dataclass
@@ -62,15 +62,15 @@ class TrainConfig:
     init: str | None = None  # a checkpoint to start from (fine-tuning), else fresh Xavier init
     anchor: float = 0.0  # weight of the opt-in brightness anchor; 0 is the paper's objective
     head: str = "gamma"  # "gamma" (the paper's), "gain-gamma" or "curve" (colonlight.correction)
-    objective: str = "paper"  # "paper" (unsupervised) | "restore" (to clean frames) | "hybrid" (both)
+    objective: str = "paper"  # "paper" (unsupervised) | "restore" (to clean frames) | "relative" | "hybrid"
     consistency: float = 0.5  # weight of the paper's loss inside "hybrid"
-    temporal: float = 0.0  # weight of the error's frame-to-frame change inside "restore" and "hybrid"
+    temporal: float = 0.0  # weight of the error's frame-to-frame change inside the supervised objectives
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
-            raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}")
+            raise OptionError(f"objective must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}")
         if self.head not in HEAD_OUTPUTS:
-            raise ValueError(f"head must be one of {', '.join(HEAD_OUTPUTS)}, got {self.head!r}")
+            raise OptionError(f"head must be one of {', '.join(HEAD_OUTPUTS)}, got {self.head!r}")
 
     @property
     def supervised(self) -> bool:
@@ -146,7 +146,7 @@ def load_sequences(clips: Sequence[Path], cfg: TrainConfig) -> SequenceSet:
                     f"({len(pair)} clean, {len(arrays[len(clean)])} recorded at --fps {cfg.fps})"
                 )
             clean.append(pair)
-    return SequenceSet(arrays, cfg.seq_len, cfg.stride, clean)
+    return SequenceSet(arrays, cfg.seq_len, cfg.stride, clean, relative=cfg.objective == "relative")
 
 
 def window_starts(n_frames: int, seq_len: int, stride: int) -> list[int]:
@@ -163,19 +163,56 @@ def clean_folder(clip: Path) -> Path | None:
     return None
 
 
+def start_curve(clean: np.ndarray, recorded: np.ndarray) -> np.ndarray:
+    """The monotone 256-entry uint8 table that takes ``clean``'s levels to ``recorded``'s (histogram matching,
+    over all channels): the tone change a window's first frame shows. Each level ``clean`` uses goes to the
+    recorded level whose share of the cumulative histogram holds that level's middle, which is exact for any
+    global monotone change (saturation included) and the identity for an undisturbed frame; levels ``clean``
+    does not use are interpolated between their used neighbours (held flat beyond the ends)."""
+    c_count = np.bincount(clean.ravel(), minlength=256).astype(np.float64)
+    r_count = np.bincount(recorded.ravel(), minlength=256).astype(np.float64)
+    used = np.flatnonzero(c_count > 0)
+    if used.size == 0 or r_count.sum() == 0:
+        return np.arange(256, dtype=np.uint8)
+    c_mid = (np.cumsum(c_count) - c_count / 2)[used] / c_count.sum()
+    r_cdf = np.cumsum(r_count) / r_count.sum()
+    matched = np.minimum(np.searchsorted(r_cdf, c_mid - 1e-12, side="left"), 255)
+    table = np.interp(np.arange(256), used, matched.astype(np.float64))
+    return np.clip(np.rint(table), 0, 255).astype(np.uint8)
+
+
 class SequenceSet:
     """The ``seq_len``-frame windows of a set of clips, held once per clip (windows overlap, frames are shared);
-    with ``clean``, each clip's clean frames beside it (same shape), for the supervised objectives."""
+    with ``clean``, each clip's clean frames beside it (same shape), for the supervised objectives.
+
+    ``relative``: the targets are the clean frames as the window's first frame shows them (each window's clean
+    frames passed through ``start_curve`` of its first frame): consistency with the start, the paper's goal,
+    taught with the truth. A window that starts undisturbed keeps its clean frames as targets, and a steady
+    window's targets are its own frames, so a model taught this way leaves correctly lit video alone instead of
+    pulling every clip to the training set's average exposure."""
 
     def __init__(
-        self, clips: Sequence[np.ndarray], seq_len: int, stride: int, clean: Sequence[np.ndarray] | None = None
+        self,
+        clips: Sequence[np.ndarray],
+        seq_len: int,
+        stride: int,
+        clean: Sequence[np.ndarray] | None = None,
+        *,
+        relative: bool = False,
     ) -> None:
         self.clips = [torch.from_numpy(c) for c in clips]
         self.clean = [torch.from_numpy(c) for c in clean] if clean is not None else None
         if self.clean is not None and [c.shape for c in self.clean] != [c.shape for c in self.clips]:
             raise InputError("clean frames do not match their clips frame for frame")
+        if relative and clean is None:
+            raise ValueError("relative targets need clean frames")
         self.seq_len = seq_len
         self.index = [(ci, s) for ci, c in enumerate(clips) for s in window_starts(len(c), seq_len, stride)]
+        self.start_tables: list[torch.Tensor] | None = None
+        if relative and clean is not None:
+            self.start_tables = [
+                torch.from_numpy(start_curve(clean[ci][s], clips[ci][s])).long() for ci, s in self.index
+            ]
 
     def __len__(self) -> int:
         return len(self.index)
@@ -185,10 +222,16 @@ class SequenceSet:
         return self._stack(self.clips, ids)
 
     def clean_batch(self, ids: Sequence[int]) -> torch.Tensor:
-        """The clean frames of the same windows."""
+        """The clean frames of the same windows (as their first frames show them, for ``relative``)."""
         if self.clean is None:
             raise ValueError("this set has no clean frames")
-        return self._stack(self.clean, ids)
+        if self.start_tables is None:
+            return self._stack(self.clean, ids)
+        seqs = []
+        for i in ids:
+            ci, s = self.index[i]
+            seqs.append(self.start_tables[i][self.clean[ci][s : s + self.seq_len].long()])
+        return torch.stack(seqs).float().div_(255.0)
 
     def _stack(self, clips: list[torch.Tensor], ids: Sequence[int]) -> torch.Tensor:
         seqs = [clips[ci][s : s + self.seq_len] for ci, s in (self.index[i] for i in ids)]
@@ -384,6 +427,13 @@ def objective_text(cfg: TrainConfig) -> str:
         return paper
     if cfg.objective == "restore":
         return restore
+    if cfg.objective == "relative":
+        return restore.replace(
+            "clean",
+            "clean as the window's first frame shows it (clean frames through the tone change of the "
+            "first frame, by histogram matching)",
+            1,
+        )
     return f"{restore}; plus {cfg.consistency} x the paper's loss ({paper})"
 
 

@@ -31,9 +31,9 @@ from .memory import FrameCollector
 from .metrics import Metrics
 from .model_status import ModelStatus, torch_threads
 from .probing import UploadProbe
+from .request_options import JobOptions, method_spec
 from .results import Results
 from .runners import ClipRunner, ClusterRunner, LocalRunner, MethodCache
-from .schemas import JobOptions
 from .settings import Settings
 from .store import JobRecord, JobStore
 from .sweeper import Sweeper
@@ -72,25 +72,7 @@ class JobManager:
 
     def method_spec(self, o: JobOptions) -> MethodSpec:
         """The engine's method for a request's options, with the server's weights and device."""
-        s = self.settings
-        name = o.method or s.method
-        opts: dict[str, Any] = {}
-        if name in ("rnn", "zerodce", "zerodce++"):
-            opts["device"] = s.device
-        if name == "rnn":
-            if s.weights is not None:
-                opts["weights"] = str(s.weights)
-            size = o.model_size or s.model_size
-            if size is not None:
-                opts["model_size"] = int(size) if size.isdigit() else size
-        elif o.model_size is not None:
-            raise ApiError(422, "validation_error", f"model_size applies only to method rnn, not {name!r}")
-        if name == "gamma":
-            if o.gamma is not None:
-                opts["gamma"] = o.gamma
-        elif o.gamma is not None:
-            raise ApiError(422, "validation_error", f"gamma applies only to method gamma, not {name!r}")
-        return MethodSpec.of(name, **opts)
+        return method_spec(self.settings, o)
 
     def resolved(self, o: JobOptions) -> JobOptions:
         """``o`` with the server's defaults filled in (what the job records and runs with)."""

@@ -1,137 +1,17 @@
-"""Request options and response bodies of the HTTP API (they make the OpenAPI schema)."""
+"""Response bodies of the HTTP API (they make the OpenAPI schema); request options: :mod:`.request_options`."""
 
 from __future__ import annotations
 
 from datetime import datetime, timezone
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, Field
 
-from colonlight.limits import DEFAULT_FPS, MAX_FPS
+from colonlight.limits import DEFAULT_FPS
 from colonlight.methods import available_methods
 
 METHODS = available_methods()
 JobState = Literal["queued", "running", "succeeded", "failed"]
-
-
-class JobOptions(BaseModel):
-    """The options of ``colonlight enhance`` that a request may set (form fields beside the ``file`` part).
-
-    Server-side choices (weights file, device, workers) are settings, not request options.
-    """
-
-    model_config = ConfigDict(extra="forbid")
-
-    fps: float | None = Field(
-        None,
-        ge=0,
-        le=int(MAX_FPS),
-        description=f"Extraction rate; 0 keeps every frame (default: the server's, {DEFAULT_FPS:g}).",
-    )
-    method: str | None = Field(None, description="Enhancement method (default: the server's, rnn).")
-    model_size: str | None = Field(
-        None,
-        description="rnn only: network input side in pixels (8..1024) or 'full'; default: the size the weights were trained at (48 for the shipped model).",
-    )
-    gamma: float | None = Field(None, gt=0, le=10, description="method=gamma only: the exponent (out = in ** gamma).")
-    format: Literal["png", "jpg"] = Field("png", description="Format of the enhanced frames (the zip).")
-    quality: int = Field(95, ge=1, le=100, description="JPEG quality.")
-    frames: bool = Field(True, description="Also write the enhanced frames (downloadable as a zip).")
-    content: Literal["auto", "full"] = Field(
-        "auto",
-        description="auto: the method sees only the field of view inside a black border, less fixed on-screen text; border and text pixels are written unchanged. full: the whole frame.",
-    )
-
-    @field_validator("*", mode="before")
-    @classmethod
-    def _blank_is_unset(cls, value: Any) -> Any:
-        return None if isinstance(value, str) and value.strip() == "" else value
-
-    @field_validator("method")
-    @classmethod
-    def _known_method(cls, value: str | None) -> str | None:
-        if value is not None and value not in METHODS:
-            raise ValueError(f"unknown method {value!r}; available: {', '.join(METHODS)}")
-        return value
-
-    @field_validator("model_size")
-    @classmethod
-    def _model_size(cls, value: str | None) -> str | None:
-        if value is None:
-            return None
-        v = value.strip().lower()
-        if v == "full":
-            return v
-        if not v.isdigit() or not 8 <= int(v) <= 1024:
-            raise ValueError("model_size must be an integer 8..1024 or 'full'")
-        return str(int(v))
-
-
-#: OpenAPI description of the multipart body of POST /v1/jobs and POST /v1/enhance (parsed by hand, streamed).
-def upload_request_body(description: str) -> dict[str, Any]:
-    props: dict[str, Any] = {
-        "file": {
-            "type": "string",
-            "format": "binary",
-            "description": "The clip: any video FFmpeg decodes (mp4, mov, avi, mkv, ...).",
-        },
-        "fps": {
-            "type": "number",
-            "minimum": 0,
-            "maximum": int(MAX_FPS),
-            "description": JobOptions.model_fields["fps"].description,
-            "example": int(DEFAULT_FPS),
-        },
-        "method": {
-            "type": "string",
-            "enum": METHODS,
-            "description": JobOptions.model_fields["method"].description,
-            "example": "rnn",
-        },
-        "model_size": {
-            "type": "string",
-            "pattern": "^(full|[0-9]{1,4})$",
-            "description": JobOptions.model_fields["model_size"].description,
-            "example": "64",
-        },
-        "gamma": {
-            "type": "number",
-            "exclusiveMinimum": 0,
-            "maximum": 10,
-            "description": JobOptions.model_fields["gamma"].description,
-        },
-        "format": {
-            "type": "string",
-            "enum": ["png", "jpg"],
-            "default": "png",
-            "description": JobOptions.model_fields["format"].description,
-        },
-        "quality": {
-            "type": "integer",
-            "minimum": 1,
-            "maximum": 100,
-            "default": 95,
-            "description": JobOptions.model_fields["quality"].description,
-        },
-        "frames": {"type": "boolean", "default": True, "description": JobOptions.model_fields["frames"].description},
-        "content": {
-            "type": "string",
-            "enum": ["auto", "full"],
-            "default": "auto",
-            "description": JobOptions.model_fields["content"].description,
-        },
-    }
-    return {
-        "required": True,
-        "description": description,
-        "content": {
-            "multipart/form-data": {
-                "schema": {"type": "object", "required": ["file"], "properties": props, "additionalProperties": False},
-                "encoding": {"file": {"contentType": "application/octet-stream, video/*"}},
-                "example": {"file": "(binary: clip.mp4)", "fps": 18, "method": "rnn", "format": "jpg"},
-            }
-        },
-    }
 
 
 class JobLinks(BaseModel):
@@ -167,7 +47,7 @@ class JobStatus(BaseModel):
                     "id": "q0Xq3b9bYJgP4yL2m9Vb0w",
                     "status": "running",
                     "filename": "p7.mp4",
-                    "options": {"fps": 18.0, "method": "rnn", "format": "png", "quality": 95, "frames": True},
+                    "options": {"fps": DEFAULT_FPS, "method": "rnn", "format": "png", "quality": 95, "frames": True},
                     "frames_done": 12,
                     "frames_total": 36,
                     "progress": 0.333,
@@ -209,7 +89,7 @@ class EnhanceResult(BaseModel):
                 {
                     "gammas": {
                         "clip": "p7",
-                        "fps": 18.0,
+                        "fps": DEFAULT_FPS,
                         "method": "rnn",
                         "frame_count": 2,
                         "frames": [

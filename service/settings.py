@@ -7,10 +7,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pydantic import Field, SecretStr, field_validator
+from pydantic import Field, SecretStr, ValidationInfo, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from colonlight.errors import MethodOptionError
 from colonlight.limits import DEFAULT_FPS, DEFAULT_MAX_PIXELS, MAX_FPS, available_cores
+from colonlight.methods.options import option
 
 
 def _default_workers() -> int:
@@ -71,8 +73,11 @@ class Settings(BaseSettings):
     api_key: SecretStr | None = Field(None, description="When set, every route but /healthz and /readyz requires it.")
     method: str = Field("rnn", description="Default enhancement method (loaded at start-up).")
     weights: Path | None = Field(None, description="Checkpoint for rnn (default: the shipped model).")
-    model_size: str | None = Field(None, description="Default network input size for rnn (pixels or 'full').")
-    device: str = Field("auto", description="auto | cpu | cuda | cuda:N.")
+    model_size: str | None = Field(
+        None, description="Default of a request's model_size: " + option("model_size").description
+    )
+    device: str = Field("auto", description=option("device").description)
+    runtime: str | None = Field(None, description=option("runtime").description)
     fps: float = Field(DEFAULT_FPS, ge=0, le=MAX_FPS, description="Default extraction rate (0 keeps every frame).")
     cluster: str | None = Field(None, description="Dask scheduler address: run clips there instead of locally.")
     method_cache: int = Field(4, ge=1, le=64, description="Methods with non-default options kept loaded (LRU).")
@@ -107,10 +112,21 @@ class Settings(BaseSettings):
     def _empty_key_is_none(cls, value: object) -> object:
         return None if value in ("", None) else value
 
-    @field_validator("model_size", "cluster", "weights", mode="before")
+    @field_validator("model_size", "runtime", "cluster", "weights", mode="before")
     @classmethod
     def _empty_is_none(cls, value: object) -> object:
         return None if value == "" else value
+
+    @field_validator("model_size", "runtime")
+    @classmethod
+    def _method_option(cls, value: str | None, info: ValidationInfo) -> str | None:
+        """Checked by the methods' declaration: the values and the message the CLI and a request have."""
+        if value is None:
+            return None
+        try:
+            return str(option(str(info.field_name)).parse(value))
+        except MethodOptionError as exc:
+            raise ValueError(str(exc)) from None
 
     @property
     def max_upload_bytes(self) -> int:

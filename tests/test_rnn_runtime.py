@@ -69,7 +69,7 @@ def test_what_onnxruntime_cannot_run_is_refused_in_one_line(
     make_vfr_clip(tmp_path / "clip.mp4", vfr_times(4))
     cases = {
         ("--model-size", "full"): "needs a fixed network input size",
-        ("--method", "none"): "applies only to --method rnn",
+        ("--method", "none"): "applies only to method rnn",
         ("--device", "cuda"): "cuda",
     }
     for extra, message in cases.items():
@@ -78,4 +78,4 @@ def test_what_onnxruntime_cannot_run_is_refused_in_one_line(
         )
         assert result.exit_code == 2 and message in result.output and "Traceback" not in result.output, extra
     bad = runner.invoke(app, ["enhance", str(tmp_path / "clip.mp4"), "-o", str(tmp_path / "o"), "--runtime", "tvm"])
-    assert bad.exit_code == 2 and "choose torch or onnxruntime" in bad.output
+    assert bad.exit_code == 2 and "one of torch, onnxruntime" in bad.output

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import time
 import traceback
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, replace
 from functools import partial
@@ -29,9 +29,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..errors import ColonlightError
+from ..errors import ColonlightError, OptionError
 from ..extras import install_command
 from ..methods import Method, available_methods, create_method
+from ..methods.options import methods_kwargs
 from ..metrics import clip_lighting, content_masks, mean_luma
 from .breakdown import clip_failures
 from .cache import ResultCache
@@ -77,23 +78,25 @@ class EvalMethod:
 
 
 def method_list(
-    names: Sequence[str], authors_checkpoint: Path | str | None = None, device: str = "cpu"
+    names: Sequence[str],
+    authors_checkpoint: Path | str | None = None,
+    device: str = "cpu",
+    chosen: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> list[EvalMethod]:
     """Methods by registry name (``rnn`` is ours, labelled ``rnn (ours)``); with ``authors_checkpoint``, the
-    authors' released model is added after ours as ``rnn (authors)``. Unknown names raise ``ValueError``."""
+    authors' released model is added after ours as ``rnn (authors)``. ``chosen``: each method's options, as
+    :func:`colonlight.methods.options.methods_kwargs` makes them from a user's (default: the declared ones, on
+    ``device``); the authors' row takes rnn's but its weights. Unknown names raise :class:`OptionError`."""
     known = available_methods()
-    out: list[EvalMethod] = []
-    for name in names:
-        if name not in known:
-            raise ValueError(f"unknown method {name!r}; choose from {', '.join(known)}")
-        if name in ("rnn", "zerodce", "zerodce++"):
-            out.append(EvalMethod.of("rnn (ours)" if name == "rnn" else name, name, device=device))
-        else:
-            out.append(EvalMethod.of(name, name))
-        if name == "rnn" and authors_checkpoint is not None:
-            out.append(EvalMethod.of("rnn (authors)", "rnn", device=device, weights=str(authors_checkpoint)))
-    if authors_checkpoint is not None and "rnn" not in names:
-        out.append(EvalMethod.of("rnn (authors)", "rnn", device=device, weights=str(authors_checkpoint)))
+    bad = [name for name in names if name not in known]
+    if bad:
+        raise OptionError(f"unknown method {bad[0]!r}; choose from {', '.join(known)}")
+    rows = [*names, *(["rnn"] if authors_checkpoint is not None and "rnn" not in names else [])]
+    kwargs = dict(methods_kwargs(rows, {}, {"device": device})) if chosen is None else chosen
+    out = [EvalMethod.of("rnn (ours)" if name == "rnn" else name, name, **kwargs.get(name, {})) for name in names]
+    if authors_checkpoint is not None:
+        authors = EvalMethod.of("rnn (authors)", "rnn", **{**kwargs.get("rnn", {}), "weights": str(authors_checkpoint)})
+        out.insert(names.index("rnn") + 1 if "rnn" in names else len(out), authors)
     return out
 
 

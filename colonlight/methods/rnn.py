@@ -21,6 +21,7 @@ from ..correction import CURVE_KNOTS, curve_values, gain_gamma_values
 from ..curves import apply_gamma, apply_lut, curve_lut, gain_gamma_lut
 from ..device import resolve_device
 from ..errors import OptionError
+from ..limits import MAX_MODEL_SIZE, MIN_MODEL_SIZE
 from ..model import State
 from .base import FrameResult, Method, MethodStream, check_frame
 from .rnn_onnx import make_step
@@ -212,6 +213,6 @@ def parse_model_size(value: int | str | None, trained_at: int | None = None) -> 
         size = int(value)
     except (TypeError, ValueError):
         raise OptionError(f"model size must be a positive integer, 'full' or 'auto', got {value!r}") from None
-    if size < 8:
-        raise OptionError(f"model size must be at least 8 pixels, got {size}")
+    if not MIN_MODEL_SIZE <= size <= MAX_MODEL_SIZE:
+        raise OptionError(f"model size must be {MIN_MODEL_SIZE}..{MAX_MODEL_SIZE} pixels, got {size}")
     return size

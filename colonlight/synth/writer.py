@@ -29,6 +29,7 @@ import numpy as np
 
 from ..atomic import atomic_path, write_bytes_atomic, write_json_atomic
 from ..errors import InputError
+from ..limits import DEFAULT_FPS
 from ..video import VideoWriter
 from .clip import SynthFrame, build_scene, render_frame
 from .config import Split, SynthConfig
@@ -270,7 +271,7 @@ def make_dataset(
     width: int = 256,
     height: int = 256,
     n_frames: int = 100,
-    fps: float = 18,
+    fps: float = DEFAULT_FPS,
     workers: int = 2,
     video: bool = False,
     steady_fraction: float = 0.0,

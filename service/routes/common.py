@@ -15,7 +15,8 @@ from colonlight import VideoInfo
 
 from ..errors import ApiError
 from ..jobs import Admission, JobManager
-from ..schemas import JobLinks, JobOptions, JobStatus, iso
+from ..request_options import JobOptions
+from ..schemas import JobLinks, JobStatus, iso
 from ..settings import Settings
 from ..store import JobRecord
 from ..uploads import Upload, receive_upload

@@ -8,7 +8,8 @@ from fastapi import APIRouter, Request
 
 from ..deps import Authenticated, ManagerDep, SettingsDep
 from ..errors import error_responses
-from ..schemas import EnhanceResult, upload_request_body
+from ..request_options import upload_request_body
+from ..schemas import EnhanceResult
 from .common import checked_upload
 
 router = APIRouter(prefix="/v1", tags=["enhance"], dependencies=[Authenticated])

@@ -9,10 +9,13 @@ import anyio
 from fastapi import APIRouter, Path, Request, Response
 from fastapi.responses import FileResponse
 
+from colonlight.limits import DEFAULT_FPS
+
 from ..deps import Authenticated, ManagerDep, SettingsDep
 from ..errors import ApiError, error_responses, is_disk_full, storage_full
 from ..jobs import JOB_ID_PATTERN, JobManager
-from ..schemas import JobStatus, upload_request_body
+from ..request_options import upload_request_body
+from ..schemas import JobStatus
 from ..store import JobRecord
 from .common import checked_upload, job_view
 
@@ -117,7 +120,7 @@ def get_video(job_id: JobId, manager: ManagerDep) -> FileResponse:
                     "schema": {"type": "object"},
                     "example": {
                         "clip": "p7",
-                        "fps": 18.0,
+                        "fps": DEFAULT_FPS,
                         "method": "rnn",
                         "frame_count": 36,
                         "frames": [{"index": 0, "time_s": 0.0, "source_time_s": 0.0, "gamma": 1.0, "seed": True}],

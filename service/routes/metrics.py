@@ -7,6 +7,7 @@ from fastapi import APIRouter
 from fastapi.responses import PlainTextResponse
 
 from colonlight import __version__
+from colonlight.limits import MAX_FPS
 
 from ..deps import Authenticated, ManagerDep
 from ..errors import error_responses
@@ -61,6 +62,7 @@ async def info(manager: ManagerDep) -> ServiceInfo:
         },
         limits={
             "max_upload_mb": s.max_upload_mb,
+            "max_fps": MAX_FPS,
             "sync_max_seconds": s.sync_max_seconds,
             "result_ttl_seconds": s.result_ttl_seconds,
             "workers": s.workers,

@@ -44,7 +44,7 @@ from typing import Any, Literal
 
 import anyio
 from fastapi import APIRouter, WebSocket
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
 from starlette.websockets import WebSocketDisconnect
 
 from colonlight import ColonlightError, FrameResult, MethodStream
@@ -52,7 +52,7 @@ from colonlight import ColonlightError, FrameResult, MethodStream
 from ..deps import key_is_valid
 from ..errors import ApiError
 from ..jobs import JobManager
-from ..schemas import JobOptions
+from ..request_options import METHOD_FIELDS, JobOptions, method_option_fields
 from ..settings import Settings
 from ..stream_frames import FrameError, decode_frame, encode_frame, max_pixels
 
@@ -66,7 +66,7 @@ CLOSE_INTERNAL = 1011
 CLOSE_BUSY = 1013
 
 
-class StreamStart(BaseModel):
+class _StreamStartBase(BaseModel):
     """The optional first message: the stream's options (the enhancement options of a job, plus the answer's)."""
 
     model_config = ConfigDict(extra="forbid")
@@ -74,16 +74,19 @@ class StreamStart(BaseModel):
     type: Literal["start"]
     api_key: str | None = Field(None, description="The server's key, for clients that cannot send headers.")
     method: str | None = None
-    model_size: str | int | None = None
-    gamma: float | None = None
     format: Literal["jpeg", "png"] = Field("jpeg", description="Format of the enhanced frames sent back.")
     quality: int = Field(90, ge=1, le=100, description="JPEG quality of the frames sent back.")
     frames: bool = Field(True, description="Send the enhanced frames (false: the gamma records only).")
 
-    def job_options(self) -> JobOptions:
-        """The enhancement options, validated exactly as a job's are (ValidationError)."""
-        size = None if self.model_size is None else str(self.model_size)
-        return JobOptions(method=self.method, model_size=size, gamma=self.gamma)
+    def job_options(self) -> Any:
+        """The enhancement options, validated exactly as a job's are (ValidationError): the method and the
+        methods' declared request options (``model_size``, ``gamma``, ...)."""
+        values = {name: getattr(self, name) for name in METHOD_FIELDS}
+        return JobOptions(method=self.method, **values)
+
+
+#: The start message: its own fields and the methods' declared request options (checked as a job's are).
+StreamStart = create_model("StreamStart", __base__=_StreamStartBase, __module__=__name__, **method_option_fields())
 
 
 class StreamSlots:

@@ -50,7 +50,9 @@ async function loadInfo() {
       if (m === info.defaults.method) opt.selected = true;
       select.appendChild(opt);
     }
-    $("fps").value = info.defaults.fps;
+    $("fps").value = info.defaults.fps;  // the server's default and bound (colonlight/limits.py), not copies
+    $("fps").max = info.limits.max_fps;
+    $("live-fps").value = $("live-fps").defaultValue = info.defaults.fps || $("live-fps").max;
     $("limits").textContent = `any video FFmpeg reads, up to ${info.limits.max_upload_mb} MiB`;
     showError("");
   } catch (err) {
@@ -68,7 +70,7 @@ function upload(file) {
   return new Promise((resolve, reject) => {
     const form = new FormData();
     form.append("method", $("method").value || "rnn");
-    form.append("fps", $("fps").value || "18");
+    if ($("fps").value !== "") form.append("fps", $("fps").value);  // else the server's default
     form.append("file", file, file.name);
     const xhr = new XMLHttpRequest();
     xhr.open("POST", "/v1/jobs");

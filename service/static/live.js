@@ -138,7 +138,7 @@ function sendNextFrame(ws) {
   if (live.ws !== ws || ws.readyState !== WebSocket.OPEN) return;
   const video = $("live-source");
   if (!live.running || video.ended) { liveEnd(); return; }
-  const interval = 1000 / Math.max(1, Number($("live-fps").value) || 18);
+  const interval = 1000 / Math.max(1, Number($("live-fps").value) || Number($("live-fps").defaultValue));
   const wait = live.lastSend + interval - performance.now();
   if (wait > 0 || video.readyState < 2 || !video.videoWidth) {
     clearTimeout(live.timer);

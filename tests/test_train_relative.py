@@ -1,0 +1,78 @@
+"""The ``relative`` objective: targets are the clean frames as each window's first frame shows them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from colonlight.curves import gain_gamma_lut
+from colonlight.train import SequenceSet, TrainConfig, start_curve, train
+
+
+def _scene(rng: np.random.Generator, size: int = 32) -> np.ndarray:
+    return (cv2.GaussianBlur(rng.uniform(0.05, 0.9, (size, size, 3)), (0, 0), 1.5) * 255).round().astype(np.uint8)
+
+
+def test_start_curve_recovers_a_known_global_tone_change_and_is_identity_when_undisturbed() -> None:
+    clean = _scene(np.random.default_rng(0), 64)
+    assert np.array_equal(start_curve(clean, clean)[np.unique(clean)], np.unique(clean))
+    lut = gain_gamma_lut(1.4, 0.7)
+    recorded = lut[clean]
+    got = start_curve(clean, recorded)
+    assert np.abs(got[clean].astype(int) - recorded.astype(int)).max() <= 1
+
+
+def test_a_steady_clip_exposed_unlike_its_clean_frames_is_its_own_target() -> None:
+    """A clip recorded brighter than 'clean' throughout (steady lighting): restore asks the model to darken it to
+    the training set's idea of right; relative asks for the frames as they are."""
+    rng = np.random.default_rng(1)
+    scene = _scene(rng, 48)
+    clean = np.stack([scene[i : i + 32, i : i + 32] for i in range(8)])  # the camera moves over one scene
+    recorded = gain_gamma_lut(1.5, 0.8)[clean]
+    restore = SequenceSet([recorded], 4, 2, [clean])
+    relative = SequenceSet([recorded], 4, 2, [clean], relative=True)
+    frames = relative.batch([0, 1, 2])
+    assert (restore.clean_batch([0]) - frames[:1]).abs().mean() > 0.05
+    error = (relative.clean_batch([0, 1, 2]) - frames).abs()
+    assert error.mean() <= 0.5 / 255 and error.max() <= 4 / 255  # levels the first frame lacks are interpolated
+
+
+def test_a_gain_jump_inside_a_window_is_undone_relative_to_its_start() -> None:
+    rng = np.random.default_rng(2)
+    clean = np.stack([_scene(rng)] * 6)
+    gains = [1.0, 1.0, 1.0, 1.6, 1.6, 1.0]
+    recorded = np.stack([gain_gamma_lut(g, 1.0)[c] for g, c in zip(gains, clean, strict=True)])
+    targets = SequenceSet([recorded], 6, 6, [clean], relative=True).clean_batch([0])[0]
+    assert (targets - SequenceSet([clean], 6, 6).batch([0])[0]).abs().max() <= 1.5 / 255  # start undisturbed: clean
+
+
+def _pair_clip(root: Path, seed: int, n: int = 12, size: int = 32) -> Path:
+    rng = np.random.default_rng(seed)
+    base = _scene(rng, size)
+    exposure = rng.uniform(0.6, 1.5)  # the whole clip's own exposure, which the truth shares in steady windows
+    for sub in ("frames", "clean"):
+        (root / sub).mkdir(parents=True)
+    for i in range(n):
+        gain = 1.0 if i % 4 < 2 else rng.uniform(0.6, 1.5)
+        cv2.imwrite(str(root / "clean" / f"{i:04d}.png"), base[..., ::-1])
+        cv2.imwrite(str(root / "frames" / f"{i:04d}.png"), gain_gamma_lut(exposure * gain, 1.0)[base][..., ::-1])
+    return root / "frames"
+
+
+def test_training_with_the_relative_objective_learns_and_records_it(tmp_path: Path) -> None:
+    clips = [_pair_clip(tmp_path / f"c{i}", i) for i in range(3)]
+    cfg = TrainConfig(
+        size=32, seq_len=6, stride=4, batch=2, lr=3e-3, epochs=3, fps=None, head="gain-gamma", objective="relative"
+    )
+    res = train(clips[:2], clips[2:], tmp_path / "run", cfg, name="rel")
+    assert res.card["training"]["objective"].startswith("mean |corrected - clean as the window's first frame")
+    assert res.card["seed_frames"] == 0
+    assert res.history[-1].train_loss < res.history[0].train_loss
+
+
+def test_relative_targets_need_clean_frames() -> None:
+    with pytest.raises(ValueError, match="clean"):
+        SequenceSet([np.zeros((4, 8, 8, 3), np.uint8)], 2, 1, relative=True)
