@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from colonlight import ClipOptions, MethodSpec, discover_clips, run_batch
+from colonlight import ClipOptions, MethodSpec, discover_clips, network_threads, run_batch, tune_for_clips
 from colonlight.limits import DEFAULT_FPS
 
 from .display import BatchDisplay, console, error_line
@@ -48,10 +48,12 @@ def demo(
         write_clip(clip_dir, cfg, seed=DEMO_SEED, video=True, frames=False)
     enhanced = output / "enhanced"
     jobs = discover_clips([video_path], enhanced)
+    spec = MethodSpec.of("rnn")
+    tune_for_clips(network_threads(spec, 1), load_torch=True)  # this process runs the clip, as enhance's does
     with BatchDisplay(len(jobs), quiet=quiet) as display:
         outcomes = run_batch(
             jobs,
-            MethodSpec.of("rnn"),
+            spec,
             ClipOptions(fps=DEFAULT_FPS, video=True),
             enhanced,
             progress=None if quiet else display.event,

@@ -22,9 +22,11 @@ from colonlight import (
     default_workers,
     discover,
     is_available,
+    network_threads,
     output_lock,
     read_camera,
     run_batch,
+    tune_for_clips,
 )
 from colonlight.limits import DEFAULT_FPS
 
@@ -168,6 +170,7 @@ def _run(
     """The batch: load the model, hold the output folder, find the clips, run them. True if anything failed."""
     with imports_frozen():
         load_method_or_exit(spec, debug)  # load the model now: a bad checkpoint or absent device stops here, loudly
+    tune_for_clips(network_threads(spec, 1))  # this process may run the clips: its torch threads and malloc, once
     try:
         with output_lock(output):
             found = discover(inputs, output, pattern, exclude=[output])

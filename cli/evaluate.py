@@ -10,7 +10,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from colonlight.errors import ColonlightError
+from colonlight import ColonlightError
 from colonlight.limits import DEFAULT_FPS
 
 from . import options
@@ -21,7 +21,7 @@ GATE_SEEDS = range(700_000, 700_024)  # benchmarks/quality_gate.py
 
 
 def _method_names(text: str) -> list[str]:
-    from colonlight.methods import available_methods
+    from colonlight import available_methods
 
     names = [n.strip() for n in text.split(",") if n.strip()]
     known = available_methods()
@@ -96,7 +96,7 @@ class _Display:
 def _summary_table(rows: list[dict[str, Any]], modes: tuple[str, ...]) -> Table:
     """Per method: flicker, consistency, exposure, then per brightness setting (fixed, the paper's, first)
     tracker success, tracked fraction and the share of the input -> oracle-curve gap closed, then COLMAP."""
-    from colonlight.evaluation.report import fmt, fmt_pair, success_cell
+    from colonlight.evaluation import fmt, fmt_pair, success_cell
 
     table = Table(title="colonlight evaluate", header_style="bold")
     columns = ["method", "clips", "flicker in -> out", "MC-SSIM out", "dark/bright % out"]
@@ -227,9 +227,15 @@ def evaluate(
 ) -> None:
     """Measure lighting consistency, exposure, tracking, COLMAP and cost of each method; write OUTPUT/report.html,
     results.json, table.md, table.csv and clips.csv."""  # fmt: skip
-    from colonlight.evaluation.clips import find_clips, make_benchmark
-    from colonlight.evaluation.report import write_report
-    from colonlight.evaluation.runner import evaluate_clips, method_list, require_extras, summarize
+    from colonlight.evaluation import (
+        evaluate_clips,
+        find_clips,
+        make_benchmark,
+        method_list,
+        require_extras,
+        summarize,
+        write_report,
+    )
 
     names = _method_names(methods)
     options.check_fps(fps)

@@ -6,7 +6,7 @@ import json
 
 import typer
 
-from colonlight.errors import ColonlightError
+from colonlight import ColonlightError
 
 from .display import out
 
@@ -15,9 +15,7 @@ def info(as_json: bool = typer.Option(False, "--json", help="Machine-readable ou
     """Show versions, the default model (name, sha256, card), the device and the available methods."""
     import torch
 
-    from colonlight.checkpoint import DEFAULT_WEIGHTS, load_weights
-    from colonlight.methods import available_methods
-    from colonlight.provenance import library_versions
+    from colonlight import DEFAULT_WEIGHTS, available_methods, library_versions, load_weights
 
     record: dict[str, object] = {"versions": library_versions(), "methods": available_methods()}
     try:

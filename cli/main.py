@@ -11,8 +11,7 @@ import sys
 
 import typer
 
-from colonlight import __version__
-from colonlight.errors import ColonlightError
+from colonlight import ColonlightError, __version__
 
 from . import demo, enhance, evaluate, export, info, stream, synth, train
 from .display import FlagsWithoutType, error_line

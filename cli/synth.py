@@ -35,8 +35,7 @@ def synth(
     ),
 ) -> None:
     """Render synthetic colonoscopy clips: frames/, clean/, depth/, poses.txt (TUM), intrinsics.json, lighting.json."""
-    from colonlight.synth import make_dataset
-    from colonlight.synth.overlay import BORDERS, OverlaySpec
+    from colonlight.synth import BORDERS, OverlaySpec, make_dataset
 
     if split not in ("train", "heldout"):
         raise typer.BadParameter("choose train or heldout", param_hint="--split")

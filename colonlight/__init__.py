@@ -20,12 +20,13 @@ __version__ = "0.1.0"
 # The public names load on first use (PEP 562): ``import colonlight`` stays light, and ``colonlight enhance`` pays
 # only for what the clip needs (no torch for ``--method none``; nothing of training or evaluation).
 _EXPORTS: dict[str, str] = {
+    "atomic_path": "atomic",
+    "write_json_atomic": "atomic",
     "ManifestError": "batch",
     "default_workers": "batch",
-    "network_threads": "batch",
-    "reuse_frame_memory": "batch",
     "run_batch": "batch",
     "warm_method": "batch",
+    "DEFAULT_WEIGHTS": "checkpoint",
     "LoadedWeights": "checkpoint",
     "load_weights": "checkpoint",
     "save_weights": "checkpoint",
@@ -33,11 +34,13 @@ _EXPORTS: dict[str, str] = {
     "apply_lut": "curves",
     "gamma_lut": "curves",
     "resolve_device": "device",
+    "ClusterRunner": "cluster",
     "CheckpointError": "errors",
     "ColonlightError": "errors",
     "DeviceError": "errors",
     "InputError": "errors",
     "OptionError": "errors",
+    "VIDEO_SUFFIXES": "discovery",
     "PathProblem": "discovery",
     "discover": "discovery",
     "discover_clips": "discovery",
@@ -56,28 +59,41 @@ _EXPORTS: dict[str, str] = {
     "OutputError": "outdir",
     "output_lock": "outdir",
     "GammaNet": "model",
+    "GAMMAS_FILE": "pipeline",
+    "VIDEO_FILE": "pipeline",
     "ClipOptions": "pipeline",
     "ClipResult": "pipeline",
     "enhance_clip": "pipeline",
     "iter_enhanced": "pipeline",
+    "library_versions": "provenance",
     "read_camera": "slam_layout",
     "enhance_frames": "streaming",
+    "network_threads": "tuning",
+    "reuse_frame_memory": "tuning",
+    "tune_for_clips": "tuning",
+    "VideoInfo": "video",
+    "probe_video": "video",
 }
 
 if TYPE_CHECKING:
-    from .batch import ManifestError, default_workers, network_threads, reuse_frame_memory, run_batch, warm_method
-    from .checkpoint import LoadedWeights, load_weights, save_weights
+    from .atomic import atomic_path, write_json_atomic
+    from .batch import ManifestError, default_workers, run_batch, warm_method
+    from .checkpoint import DEFAULT_WEIGHTS, LoadedWeights, load_weights, save_weights
+    from .cluster import ClusterRunner
     from .curves import apply_gamma, apply_lut, gamma_lut
     from .device import resolve_device
-    from .discovery import PathProblem, discover, discover_clips
+    from .discovery import VIDEO_SUFFIXES, PathProblem, discover, discover_clips
     from .errors import CheckpointError, ColonlightError, DeviceError, InputError, OptionError
     from .jobs import ClipJob, ClipOutcome, MethodSpec, estimate_frames, method_for, run_clip
     from .methods import FrameResult, Method, MethodStream, available_methods, create_method, is_available
     from .model import GammaNet
     from .outdir import OutputError, output_lock
-    from .pipeline import ClipOptions, ClipResult, enhance_clip, iter_enhanced
+    from .pipeline import GAMMAS_FILE, VIDEO_FILE, ClipOptions, ClipResult, enhance_clip, iter_enhanced
+    from .provenance import library_versions
     from .slam_layout import read_camera
     from .streaming import enhance_frames
+    from .tuning import network_threads, reuse_frame_memory, tune_for_clips
+    from .video import VideoInfo, probe_video
 
 
 def __getattr__(name: str) -> Any:
@@ -99,9 +115,12 @@ __all__ = [
     "ClipOptions",
     "ClipOutcome",
     "ClipResult",
+    "ClusterRunner",
     "ColonlightError",
+    "DEFAULT_WEIGHTS",
     "DeviceError",
     "FrameResult",
+    "GAMMAS_FILE",
     "GammaNet",
     "InputError",
     "LoadedWeights",
@@ -112,9 +131,13 @@ __all__ = [
     "OptionError",
     "OutputError",
     "PathProblem",
+    "VIDEO_FILE",
+    "VIDEO_SUFFIXES",
+    "VideoInfo",
     "__version__",
     "apply_gamma",
     "apply_lut",
+    "atomic_path",
     "available_methods",
     "create_method",
     "default_workers",
@@ -126,15 +149,19 @@ __all__ = [
     "gamma_lut",
     "is_available",
     "iter_enhanced",
+    "library_versions",
     "load_weights",
     "method_for",
     "network_threads",
     "output_lock",
+    "probe_video",
     "read_camera",
     "resolve_device",
     "reuse_frame_memory",
     "run_batch",
     "run_clip",
     "save_weights",
+    "tune_for_clips",
     "warm_method",
+    "write_json_atomic",
 ]

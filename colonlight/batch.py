@@ -46,6 +46,7 @@ from .limits import available_cores
 from .methods import Method
 from .outdir import output_lock
 from .pipeline import GAMMAS_FILE, ClipOptions
+from .tuning import network_threads, tune_for_clips
 
 MANIFEST_FILE = "manifest.json"
 #: How names that are not valid UTF-8 appear in the manifest (and in every gammas.json): see atomic.json_bytes.
@@ -137,40 +138,6 @@ def default_workers(n_clips: int) -> int:
     return max(1, min(n_clips, available_cores() // 2))
 
 
-#: glibc's mallopt parameters (malloc.h) and the values set for a clip worker: see :func:`reuse_frame_memory`.
-_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
-_MMAP_THRESHOLD = 32 << 20  # glibc's largest allowed value (HEAP_MAX_SIZE / 2 on 64-bit)
-_TRIM_THRESHOLD = 128 << 20
-
-
-def reuse_frame_memory() -> bool:
-    """Let glibc's malloc serve frame-sized buffers (a few MB, several per frame) from memory it keeps, instead of
-    a fresh ``mmap`` each (page faults on every first touch, ``munmap`` on free). Process-wide; returns whether
-    it was applied (glibc only; skipped if the user set ``MALLOC_MMAP_THRESHOLD_``/``MALLOC_TRIM_THRESHOLD_``).
-
-    Measured on a 20 s 1350x1080 clip: minor page faults 380k -> 76k, system CPU -0.5 s; peak memory +11 MiB.
-    """
-    if not sys.platform.startswith("linux") or any(
-        k in os.environ for k in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
-    ):
-        return False
-    import ctypes
-
-    try:
-        mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError):  # not glibc (musl has no mallopt)
-        return False
-    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
-    return bool(mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD)) and bool(mallopt(_M_TRIM_THRESHOLD, _TRIM_THRESHOLD))
-
-
-def _init_worker(threads: int) -> None:
-    import torch
-
-    torch.set_num_threads(max(1, threads))
-    reuse_frame_memory()
-
-
 #: Signals that stop a batch; held back while pool workers are started, so that a worker never starts with
 #: Python's default Ctrl-C handler (it ignores SIGINT: the batch process decides, see _run_pool).
 _STOP_SIGNALS = frozenset({signal.SIGINT, signal.SIGTERM})
@@ -200,7 +167,7 @@ def _die_with_parent(parent_pid: int) -> None:
 def _init_pool_worker(threads: int, parent_pid: int, events: Any) -> None:
     """A clip worker process: bound to the batch process's life, deaf to Ctrl-C (the terminal sends it to the
     whole process group; the batch process stops the workers itself), torch threads, then the imports frozen
-    out of the cyclic GC (see cli/enhance.py)."""
+    out of the cyclic GC (see cli/loading.py). The process-wide tuning of a clip worker happens here, at its entry."""
     import gc
 
     global _EVENTS
@@ -208,19 +175,8 @@ def _init_pool_worker(threads: int, parent_pid: int, events: Any) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
     _EVENTS = events
-    _init_worker(threads)
+    tune_for_clips(threads, load_torch=True)
     gc.freeze()
-
-
-def network_threads(spec: MethodSpec, workers: int) -> int:
-    """torch threads for a clip worker: one for the recurrent net on a small copy of the frame (a 3 ms step that
-    a second OpenMP thread barely speeds up while its spinning starves the decode and encode threads), else the
-    worker's share of the cores."""
-    cores = available_cores()
-    size = dict(spec.options).get("model_size")
-    if spec.name == "rnn" and str(size).lower() != "full":
-        return 1
-    return max(1, cores // max(1, workers))
 
 
 def _run_in_worker(job: ClipJob, spec: MethodSpec, opts: ClipOptions, overwrite: bool) -> ClipOutcome:
@@ -286,8 +242,7 @@ def run_batch(
                 from .cluster import run_on_cluster
 
                 run_on_cluster(cluster, jobs, spec, opts, overwrite, done, progress)
-            elif workers <= 1 or len(jobs) <= 1:
-                _init_worker(network_threads(spec, 1))
+            elif workers <= 1 or len(jobs) <= 1:  # in this process, tuned (or not) by its entry, not here
                 for i, job in enumerate(jobs):
                     try:
                         done(run_clip(job, spec, opts, overwrite, progress))

@@ -151,9 +151,7 @@ class ClusterRunner:
     flight from this server. No per-frame progress or mid-clip cancellation on this path."""
 
     def __init__(self, address: str, workers: int) -> None:
-        from colonlight.cluster import (
-            ClusterRunner as EngineClusterRunner,  # optional: imported only when used
-        )
+        from colonlight import ClusterRunner as EngineClusterRunner  # optional: imported only when used
 
         self._cluster = EngineClusterRunner(address)
         self._waiters = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="colonlight-cluster")

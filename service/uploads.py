@@ -22,7 +22,7 @@ from python_multipart.exceptions import MultipartParseError
 from python_multipart.multipart import MultipartParser, MultipartState, parse_options_header
 from starlette.requests import ClientDisconnect, Request
 
-from colonlight.discovery import VIDEO_SUFFIXES
+from colonlight import VIDEO_SUFFIXES
 
 from .errors import ApiError, is_disk_full, storage_full
 

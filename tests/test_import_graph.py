@@ -161,3 +161,46 @@ def test_no_private_name_imported_from_another_module(graph: Graph) -> None:
 def test_the_engine_has_no_cli_or_web_code(graph: Graph) -> None:
     bad = {m: sorted(graph.external[m] & set(SHELL_ONLY)) for m in graph.modules if m.split(".")[0] == "colonlight"}
     assert {m: names for m, names in bad.items() if names} == {}
+
+
+#: The engine modules a shell may import: the public API, the public modules of defaults and bounds, of the exception
+#: types and of the methods' option declaration, and the subpackages' own APIs (each lazy or light).
+PUBLIC_ENGINE = {
+    "colonlight",
+    "colonlight.limits",
+    "colonlight.errors",
+    "colonlight.methods.options",
+    "colonlight.evaluation",
+    "colonlight.synth",
+    "colonlight.live",
+}
+#: Deep imports of the shells not yet moved to the public API (issue 15); this list may only shrink.
+NOT_YET_PUBLIC = {
+    "colonlight_cli.export": {
+        "colonlight.checkpoint",
+        "colonlight.errors",
+        "colonlight.methods.rnn",
+        "colonlight.onnx_export",
+    },
+    "colonlight_cli.stream": {"colonlight.live.reader"},
+    "colonlight_cli.train": {
+        "colonlight.checkpoint",
+        "colonlight.discovery",
+        "colonlight.methods.zerodce_train",
+        "colonlight.sources",
+        "colonlight.train",
+    },
+    "colonlight_service.schemas": {"colonlight.methods"},
+}
+
+
+def test_the_shells_use_the_public_api(graph: Graph) -> None:
+    """cli/ and service/ reach the engine through ``import colonlight`` (and the subpackages' APIs), so that the
+    engine's modules can be split and moved without touching the shells: export what a shell needs there."""
+    deep = {}
+    for module in graph.modules:
+        if module.split(".")[0] in ("colonlight_cli", "colonlight_service"):
+            targets = {t for t in graph.edges[module] if t.split(".")[0] == "colonlight" and t not in PUBLIC_ENGINE}
+            if targets - NOT_YET_PUBLIC.get(module, set()):
+                deep[module] = sorted(targets - NOT_YET_PUBLIC.get(module, set()))
+    assert deep == {}

@@ -51,7 +51,7 @@ def test_is_available_imports_only_the_method_asked_for() -> None:
 
 
 def test_reuse_frame_memory_is_safe_to_repeat() -> None:
-    from colonlight.batch import reuse_frame_memory
+    from colonlight.tuning import reuse_frame_memory
 
     first = reuse_frame_memory()
     assert reuse_frame_memory() == first

@@ -26,7 +26,8 @@ from ..frames import encode_image
 from ..limits import DEFAULT_FPS
 from ..provenance import distribution_versions, library_versions
 from .breakdown import CAUSES
-from .runner import EvaluationResult, failure_breakdown, summarize
+from .records import EvaluationResult
+from .summary import failure_breakdown, summarize
 from .tracker import BRIGHTNESS_MODES
 
 RESULTS_FILE, TABLE_MD, TABLE_CSV, CLIPS_CSV, REPORT_HTML = (

@@ -11,6 +11,8 @@ are kept in memory (clips are short, at working size) and scored. One clip is in
 
 A method that cannot be built (weights not installed, the authors' checkpoint absent) is skipped with its
 one-line reason; a clip that cannot be loaded is recorded as failed with its one-line reason; the rest goes on.
+
+What a run records: :mod:`.records`; the one row per method made from it: :mod:`.summary` (both re-exported here).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import time
 import traceback
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -32,10 +34,10 @@ from ..extras import install_command
 from ..methods import Method, available_methods, create_method
 from ..methods.options import methods_kwargs
 from ..metrics import clip_lighting, content_masks, mean_luma
-from .breakdown import clip_failures, summarize_failures
+from .breakdown import clip_failures
 from .cache import ResultCache
 from .clips import DEFAULT_FPS, DEFAULT_MAX_SIZE, ClipRef, EvalClip
-from .colmap import APE_STATS, ColmapSettings, run_colmap
+from .colmap import ColmapSettings, run_colmap
 from .consistency import (
     Correspondence,
     depth_correspondences,
@@ -44,10 +46,10 @@ from .consistency import (
     motion_compensated_ssim,
 )
 from .oracles import CLEAN_LABEL, CURVE_LABEL, GAMMA_LABEL, REFERENCE_LABELS, oracle_frames
+from .records import ClipRecord, EvaluationResult, MethodClipResult
+from .summary import INPUT_NAME, failure_breakdown, input_label, nanmean, nanmedian, summarize
 from .tracker import BRIGHTNESS_MODES, TrackerSettings
 
-#: The label of the unenhanced input (the ``none`` method), against which gaps are measured.
-INPUT_NAME = "none"
 #: Why the reference rows are absent when no clip has clean frames.
 NO_CLEAN_REASON = "no clip has clean frames (synthetic clips, or clean frames of your own)"
 
@@ -118,108 +120,6 @@ def require_extras(colmap: bool = True) -> None:
         )
 
 
-# ------------------------------------------------------------------------------------------------- records
-
-
-@dataclass
-class MethodClipResult:
-    """One method on one clip. Fractions in [0, 1]; luminance in [0, 1]; time in milliseconds."""
-
-    clip: str
-    method: str
-    frames: int = 0
-    ms_per_frame: float = float("nan")
-    cpu_ms_per_frame: float = float("nan")
-    flicker_in: float = float("nan")
-    flicker_out: float = float("nan")
-    mean_luma_in: float = float("nan")
-    mean_luma_out: float = float("nan")
-    psnr_in: float | None = None
-    psnr_out: float | None = None
-    ssim_in: float = float("nan")
-    ssim_out: float = float("nan")
-    dark_in: float = float("nan")
-    dark_out: float = float("nan")
-    bright_in: float = float("nan")
-    bright_out: float = float("nan")
-    luma_out: list[float] = field(default_factory=list)
-    ssim_series: list[float] = field(default_factory=list)
-    gammas: list[float | None] | None = None
-    tracking: dict[str, dict[str, Any]] | None = None  # brightness setting ("fixed", "affine") -> result
-    colmap: dict[str, Any] | None = None
-    error: str | None = None
-    detail: str | None = None  # traceback of an unexpected error
-
-    @property
-    def flicker_reduction(self) -> float:
-        return 1.0 - self.flicker_out / self.flicker_in if self.flicker_in > 0 else float("nan")
-
-
-@dataclass
-class ClipRecord:
-    """A clip's description, its input series and one result per method."""
-
-    name: str
-    info: dict[str, Any]
-    correspondence: str  # "depth+pose" | "optical flow"
-    valid_fraction: float  # mean fraction of pixels with a correspondence
-    luma_in: list[float]
-    ssim_in_series: list[float]
-    results: dict[str, MethodClipResult] = field(default_factory=dict)
-    # frames the input fails and the clean frames pass (see colonlight.evaluation.breakdown)
-    input_failures: list[dict[str, Any]] = field(default_factory=list)
-
-
-@dataclass
-class EvaluationResult:
-    """Everything an evaluation found; :func:`summarize` turns it into one row per method."""
-
-    methods: list[dict[str, Any]] = field(default_factory=list)  # label, name, options, parameters, model
-    skipped_methods: dict[str, str] = field(default_factory=dict)  # label -> reason
-    clips: list[ClipRecord] = field(default_factory=list)
-    failures: list[dict[str, str]] = field(default_factory=list)  # clip, source, error
-    settings: dict[str, Any] = field(default_factory=dict)
-    # clip -> label ("input" too) -> thumbnails of the strip frames
-    strips: dict[str, dict[str, list[np.ndarray]]] = field(default_factory=dict)
-    strip_frames: dict[str, list[int]] = field(default_factory=dict)
-    seconds: float = 0.0
-
-    @property
-    def labels(self) -> list[str]:
-        return [m["label"] for m in self.methods]
-
-    @property
-    def failed(self) -> bool:
-        """Some clip could not be loaded, or some method failed on a clip."""
-        return bool(self.failures) or any(r.error for c in self.clips for r in c.results.values())
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready (thumbnails left out)."""
-        return {
-            "methods": self.methods,
-            "skipped_methods": self.skipped_methods,
-            "settings": self.settings,
-            "summary": summarize(self),
-            "failure_breakdown": failure_breakdown(self),
-            "clips": [
-                {
-                    **{k: v for k, v in asdict(c).items() if k != "results"},
-                    "results": {label: _json_result(r) for label, r in c.results.items()},
-                }
-                for c in self.clips
-            ],
-            "failures": self.failures,
-            "seconds": self.seconds,
-        }
-
-
-def _json_result(r: MethodClipResult) -> dict[str, Any]:
-    d = asdict(r)
-    d.pop("detail")
-    d["flicker_reduction"] = r.flicker_reduction
-    return d
-
-
 # ----------------------------------------------------------------------------------------------- scoring
 
 
@@ -228,23 +128,6 @@ def _correspondences(clip: EvalClip) -> tuple[str, list[Correspondence]]:
         assert clip.depths is not None and clip.poses is not None and clip.K is not None
         return "depth+pose", depth_correspondences(clip.depths, clip.poses, clip.K)
     return "optical flow", flow_correspondences(clip.frames)
-
-
-def _nanmean(values: Iterable[float | None]) -> float:
-    v = np.array([x for x in values if x is not None], dtype=np.float64)
-    v = v[np.isfinite(v)]
-    return float(v.mean()) if v.size else float("nan")
-
-
-def _finite(values: np.ndarray) -> np.ndarray:
-    v = np.asarray(values, dtype=np.float64)
-    return v[np.isfinite(v)]
-
-
-def _nanmedian(values: Iterable[float | None]) -> float | None:
-    v = np.array([x for x in values if x is not None], dtype=np.float64)
-    v = v[np.isfinite(v)]
-    return float(np.median(v)) if v.size else None
 
 
 NO_DEPTH_REASON = "no depth: tracking needs a synthetic clip's known depth"
@@ -272,7 +155,7 @@ def _track(clip: EvalClip, frames: list[np.ndarray], settings: TrackerSettings) 
         "failure_reason": res.failure_reason,
         "seconds": time.perf_counter() - t0,
         "converged_fraction": float(np.mean(res.converged)),
-        "residual_median": _nanmedian(res.residual[1:]),
+        "residual_median": nanmedian(res.residual[1:]),
     }
     te, re = res.translation_error_m, res.rotation_error_deg
     if te is not None and re is not None and len(te) > 1:
@@ -373,7 +256,7 @@ def _score(
     r.gammas = gammas if any(g is not None for g in gammas) else None
     series = motion_compensated_ssim(out, ctx.corrs, ctx.masks)
     r.ssim_series = [float(x) for x in series]
-    r.ssim_in, r.ssim_out = _nanmean(ctx.ssim_in), _nanmean(series)
+    r.ssim_in, r.ssim_out = nanmean(ctx.ssim_in), nanmean(series)
     r.dark_in, r.bright_in = ctx.dark_in, ctx.bright_in
     r.dark_out, r.bright_out = exposure_fractions(out, ctx.masks)
     truth = [clip.K, *(clip.poses or []), *(clip.depths or [])]
@@ -713,140 +596,6 @@ def _evaluate_clips(
             "computed": cache.misses,
         }
     return result
-
-
-# ----------------------------------------------------------------------------------------------- summary
-
-
-def summarize(result: EvaluationResult) -> list[dict[str, Any]]:
-    """One row per evaluated method: means over the clips it ran on (see the report for definitions).
-
-    Tracking, per brightness setting ``m`` (``fixed``, ``affine``; fields of a setting not run are None): a clip
-    counts when tracking applied (known depth); ``track_success_m`` clips tracked with no failing frame,
-    ``track_success_rate_m`` that over ``tracked``; ``tracked_fraction_m`` the mean over clips of the fraction
-    of frames 1.. within the thresholds; pose errors are the median over tracked clips of each clip's median
-    frame error (robust to diverged tracks), and the mean over clips of each clip's mean error over the frames
-    before its first failure. ``gap_closed_success_m`` / ``gap_closed_tracked_m``: the fraction of the input ->
-    oracle-curve gap closed, (method - input) / (oracle-curve - input) over the clips all three ran on (None
-    without an input row, an oracle-curve row or a gap). ``rescued_m`` / ``rescue_rate_m``: of the frames the
-    input fails and the clean frames pass, those this method passes. COLMAP: ``registered`` is the mean over
-    clips of the fraction of frames registered; ATE statistics are means over the clips where an ATE exists
-    (at least 3 registered frames), in metres.
-    """
-    modes = tuple(result.settings.get("brightness") or BRIGHTNESS_MODES)
-    breakdown = failure_breakdown(result)
-    rows = []
-    for label in result.labels:
-        rs = [c.results[label] for c in result.clips if label in c.results and not c.results[label].error]
-        frames = sum(r.frames for r in rs)
-        cms = [r.colmap for r in rs if r.colmap is not None]
-        ates = [c["ate"] for c in cms if c.get("ate")]
-        row: dict[str, Any] = {
-            "method": label,
-            "clips": len(rs),
-            "frames": frames,
-            "ms_per_frame": sum(r.ms_per_frame * r.frames for r in rs) / frames if frames else float("nan"),
-            "cpu_ms_per_frame": sum(r.cpu_ms_per_frame * r.frames for r in rs) / frames if frames else float("nan"),
-            "flicker_in": _nanmean(r.flicker_in for r in rs),
-            "flicker_out": _nanmean(r.flicker_out for r in rs),
-            "flicker_reduction": _nanmean(r.flicker_reduction for r in rs),
-            "ssim_in": _nanmean(r.ssim_in for r in rs),
-            "ssim_out": _nanmean(r.ssim_out for r in rs),
-            "dark_in": _nanmean(r.dark_in for r in rs),
-            "dark_out": _nanmean(r.dark_out for r in rs),
-            "bright_in": _nanmean(r.bright_in for r in rs),
-            "bright_out": _nanmean(r.bright_out for r in rs),
-            "psnr_in": _nanmean(r.psnr_in for r in rs),
-            "psnr_out": _nanmean(r.psnr_out for r in rs),
-            "tracked": max((len(_tracks(rs, m)) for m in modes), default=0),
-        }
-        for m in BRIGHTNESS_MODES:
-            row.update(_tracking_fields(result, label, rs, m, breakdown.get(m) if m in modes else None, m in modes))
-        row.update(
-            colmap_clips=len(cms),
-            registered=_nanmean(c["fraction"] for c in cms) if cms else None,
-            ate_clips=len(ates),
-        )
-        for k in APE_STATS:
-            row[f"ate_{k}_m"] = _nanmean(a[k] for a in ates) if ates else None
-        rows.append(row)
-    return rows
-
-
-def _tracks(rs: Sequence[MethodClipResult], mode: str) -> list[dict[str, Any]]:
-    return [t for r in rs if r.tracking and (t := r.tracking.get(mode)) and t.get("applicable")]
-
-
-def _tracking_fields(
-    result: EvaluationResult,
-    label: str,
-    rs: Sequence[MethodClipResult],
-    mode: str,
-    breakdown: dict[str, Any] | None,
-    ran: bool,
-) -> dict[str, Any]:
-    """The tracking columns of one method in one brightness setting (all None when it was not run)."""
-    tracked = _tracks(rs, mode) if ran else []
-    n_ok = sum(1 for t in tracked if t["success"])
-    rescue = (breakdown or {}).get("rescue", {}).get(label) or {}
-    return {
-        f"track_success_{mode}": n_ok if ran else None,
-        f"track_success_rate_{mode}": n_ok / len(tracked) if tracked else None,
-        f"tracked_fraction_{mode}": _nanmean(t.get("tracked_fraction") for t in tracked) if tracked else None,
-        f"gap_closed_success_{mode}": _gap_closed(result, label, mode, "success") if ran else None,
-        f"gap_closed_tracked_{mode}": _gap_closed(result, label, mode, "tracked_fraction") if ran else None,
-        f"rescued_{mode}": rescue.get("rescued"),
-        f"rescue_rate_{mode}": rescue.get("rate"),
-        f"track_te_{mode}_m": _nanmedian(t.get("translation_error_m_median") for t in tracked),
-        f"track_re_{mode}_deg": _nanmedian(t.get("rotation_error_deg_median") for t in tracked),
-        f"track_te_mean_tracked_{mode}_m": _nanmean(t.get("translation_error_m_mean_tracked") for t in tracked)
-        if tracked
-        else None,
-        f"track_re_mean_tracked_{mode}_deg": _nanmean(t.get("rotation_error_deg_mean_tracked") for t in tracked)
-        if tracked
-        else None,
-    }
-
-
-def input_label(result: EvaluationResult) -> str | None:
-    """The label of the unenhanced input's row (the ``none`` method), if it was evaluated."""
-    return next((m["label"] for m in result.methods if m["name"] == INPUT_NAME), None)
-
-
-def _gap_closed(result: EvaluationResult, label: str, mode: str, key: str) -> float | None:
-    """(method - input) / (oracle-curve - input) of the clip mean of ``key`` over the clips all three tracked."""
-    base = input_label(result)
-    if base is None or CURVE_LABEL not in result.labels:
-        return None
-    values: dict[str, list[float]] = {label: [], base: [], CURVE_LABEL: []}
-    for c in result.clips:
-        got = {}
-        for lab in values:
-            r = c.results.get(lab)
-            t = (r.tracking or {}).get(mode) if r is not None and not r.error else None
-            if not t or not t.get("applicable"):
-                break
-            got[lab] = float(t[key])
-        else:
-            for lab, v in got.items():
-                values[lab].append(v)
-    if not values[base]:
-        return None
-    x, x_in, x_top = (float(np.mean(values[lab])) for lab in (label, base, CURVE_LABEL))
-    gap = x_top - x_in
-    return (x - x_in) / gap if gap > 1e-9 else None
-
-
-def failure_breakdown(result: EvaluationResult) -> dict[str, Any]:
-    """Per brightness setting, the frames the input fails and the clean frames pass: counts per cause and each
-    method's rescues (see :mod:`.breakdown`); empty without clips that have clean frames and an input row."""
-    per_clip = [c.input_failures for c in result.clips]
-    if not any(c.input_failures for c in result.clips) and not any(CLEAN_LABEL in c.results for c in result.clips):
-        return {}
-    base = input_label(result)
-    labels = [lab for lab in result.labels if lab not in (base, CLEAN_LABEL)]
-    modes = tuple(result.settings.get("brightness") or BRIGHTNESS_MODES)
-    return summarize_failures(per_clip, labels, modes)
 
 
 __all__ = [

@@ -17,10 +17,13 @@ from __future__ import annotations
 
 from .clip import SynthFrame, build_scene, generate_clip, render_frame
 from .config import PARAM_SPECS, SynthConfig
+from .overlay import BORDERS, OverlaySpec
 from .writer import GENERATOR_VERSION, decode_depth, encode_depth, make_dataset, write_clip
 
 __all__ = [
+    "BORDERS",
     "GENERATOR_VERSION",
+    "OverlaySpec",
     "PARAM_SPECS",
     "SynthConfig",
     "SynthFrame",

@@ -11,7 +11,7 @@ from fastapi import Request
 from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 
-from colonlight.video import VideoInfo
+from colonlight import VideoInfo
 
 from ..errors import ApiError
 from ..jobs import Admission, JobManager

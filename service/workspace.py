@@ -1,0 +1,51 @@
+"""The data folder's layout: ``jobs/<id>/`` (upload and results), ``uploads/`` (bodies being received),
+``sync/`` (work of ``POST /v1/enhance``), and the job table beside them; one place that knows the paths."""
+
+from __future__ import annotations
+
+import secrets
+import shutil
+from pathlib import Path
+
+
+class Workspace:
+    """The folders under ``data_dir`` and the names in them."""
+
+    def __init__(self, data_dir: Path | str) -> None:
+        self.root = Path(data_dir).resolve()
+        self.jobs_dir = self.root / "jobs"
+        self.uploads_dir = self.root / "uploads"
+        self.sync_dir = self.root / "sync"
+        self.table = self.root / "jobs.sqlite3"
+
+    def prepare(self) -> None:
+        """Make the folders, and remove the partial uploads and sync work of a process that died."""
+        for d in (self.jobs_dir, self.uploads_dir, self.sync_dir):
+            d.mkdir(parents=True, exist_ok=True)
+        for leftover in list(self.uploads_dir.iterdir()) + list(self.sync_dir.iterdir()):
+            remove(leftover)
+
+    def remove_orphans(self, known: set[str]) -> None:
+        """Remove the job folders whose row is gone (deleted while the process died)."""
+        for d in self.jobs_dir.iterdir():
+            if d.name not in known:
+                remove(d)
+
+    def job_dir(self, job_id: str) -> Path:
+        return self.jobs_dir / job_id
+
+    def new_upload_path(self) -> Path:
+        return self.uploads_dir / f"{secrets.token_hex(16)}.part"
+
+    def scrub(self, message: str, source: Path, filename: str) -> str:
+        """An engine message with the server's paths replaced by the client's file name."""
+        message = message.replace(str(source), filename)
+        return message.replace(str(self.root), "<data>")
+
+
+def remove(path: Path) -> None:
+    """Remove a file or a folder tree, whatever is there (nothing if it is gone)."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
