@@ -31,12 +31,13 @@ import numpy as np
 
 from ..errors import ColonlightError, OptionError
 from ..extras import install_command
+from ..limits import DEFAULT_FPS
 from ..methods import Method, available_methods, create_method
 from ..methods.options import methods_kwargs
 from ..metrics import clip_lighting, content_masks, mean_luma
 from .breakdown import clip_failures
 from .cache import ResultCache
-from .clips import DEFAULT_FPS, DEFAULT_MAX_SIZE, ClipRef, EvalClip
+from .clips import DEFAULT_MAX_SIZE, ClipRef, EvalClip
 from .colmap import ColmapSettings, run_colmap
 from .consistency import (
     Correspondence,
@@ -283,6 +284,7 @@ def _reference_frames(clip: EvalClip, label: str) -> tuple[list[np.ndarray], lis
     """The clean frames, or an oracle's corrected frames, with their gammas and cost (ms/frame wall, CPU)."""
     assert clip.clean is not None
     c0, t0 = time.process_time(), time.perf_counter()
+    gammas: list[float | None]
     if label == CLEAN_LABEL:
         out, gammas = list(clip.clean), [None] * len(clip.clean)
     else:
