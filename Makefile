@@ -66,7 +66,7 @@ figures: install-test
 	$(BIN)/colonlight evaluate --synthetic 4 --family heldout --frames 48 --size 160 --no-colmap \
 		--methods none,he,deflicker,rnn -o $(FIGURES_EVAL)
 	$(BIN)/python scripts/report_figures.py $(FIGURES_EVAL)/report.html docs
-	COLONLIGHT_UPDATE_SCREENSHOT=1 $(BIN)/python -m pytest -q tests/test_service_browser.py
+	COLONLIGHT_UPDATE_SCREENSHOT=1 $(BIN)/python -m pytest -q tests/service/test_service_browser.py
 
 clean:
 	rm -rf $(VENV) colonlight-demo build *.egg-info

@@ -1,5 +1,5 @@
 #!/bin/sh
-# The install steps of the Docker image, shared by the Dockerfile and by tests/test_docker.py, which runs them in a
+# The install steps of the Docker image, shared by the Dockerfile and by tests/project/test_docker.py, which runs them in a
 # fresh virtual environment in CI (no Docker engine there) and then starts the image's default command.
 #
 #   docker-steps.sh deps      torch (from TORCH_INDEX), then the dependencies listed in pyproject.toml (and EXTRAS),

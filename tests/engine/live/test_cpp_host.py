@@ -1,0 +1,180 @@
+"""``examples/cpp_host``: the C++ host, compiled with g++ against ONNX Runtime, runs an exported step over a real
+clip with the state carried, and its per-frame outputs, corrections and enhanced frames match colonlight's own
+(torch) for every head the sidecar describes."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("onnxruntime", reason="the export extra (onnxruntime) is not installed")
+pytest.importorskip("onnxscript", reason="the export extra (onnxscript) is not installed")
+
+from colonlight.checkpoint import LoadedWeights, load_weights  # noqa: E402
+from colonlight.curves import gain_gamma_lut, gamma_lut  # noqa: E402
+from colonlight.methods.rnn import (  # noqa: E402
+    RecurrentGammaMethod,
+    clamp_gain_gamma,
+    clamp_gamma,
+    curve_correction,
+)
+from colonlight.model import GammaNet  # noqa: E402
+from colonlight.onnx_export import export_onnx  # noqa: E402
+from colonlight.sources import clip_frames  # noqa: E402
+from colonlight.video import VideoWriter  # noqa: E402
+
+HOST_DIR = Path(__file__).resolve().parents[3] / "examples" / "cpp_host"
+WIDTH, HEIGHT, FRAMES = 256, 208, 30  # >= 4 x 48 on the short side: the host halves it once, then area-resizes
+TOLERANCE = 1e-5
+BUILD_TIMEOUT_S = 600  # compiling against OpenCV and ONNX Runtime on a loaded 2-core machine
+
+
+@pytest.fixture(scope="module")
+def host(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``colonlight_host``, built by the example's own Makefile (ONNX Runtime's headers fetched by it if needed)."""
+    if shutil.which("g++") is None or shutil.which("make") is None:
+        pytest.skip("no g++ or make on this machine (`make -C examples/cpp_host deps` installs them as root)")
+    missing = [
+        h for h in ("opencv4/opencv2/imgproc.hpp", "nlohmann/json.hpp") if not (Path("/usr/include") / h).is_file()
+    ]
+    if missing:
+        pytest.skip(f"no {', '.join(missing)}: `make -C examples/cpp_host deps` (as root) installs them")
+    headers = subprocess.run(["make", "-s", "-C", str(HOST_DIR), "headers"], capture_output=True, text=True)
+    if headers.returncode != 0:
+        pytest.skip(f"ONNX Runtime's headers could not be fetched: {headers.stderr.strip().splitlines()[-1:]}")
+    build = tmp_path_factory.mktemp("cpp_host")
+    include = (
+        "/usr/include/onnxruntime"
+        if Path("/usr/include/onnxruntime").is_dir()
+        else HOST_DIR / "build/onnxruntime/include"
+    )
+    result = subprocess.run(
+        ["make", "-C", str(HOST_DIR), f"BUILD={build}", f"ORT_INCLUDE={include}", f"PYTHON={sys.executable}"],
+        capture_output=True,
+        text=True,
+        timeout=BUILD_TIMEOUT_S,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr  # a host that does not compile is a defect
+    return build / "colonlight_host"
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory: pytest.TempPathFactory) -> list[np.ndarray]:
+    """A synthetic colonoscopy clip with its lighting changes, written as H.264 and decoded (RGB)."""
+    from colonlight.synth import SynthConfig, generate_clip
+
+    cfg = SynthConfig.sample(np.random.default_rng(5), split="train", width=WIDTH, height=HEIGHT)
+    path = tmp_path_factory.mktemp("clip") / "clip.mp4"
+    with VideoWriter(path, fps=18) as writer:
+        for i, f in enumerate(generate_clip(cfg, seed=5)):
+            if i == FRAMES:
+                break
+            writer.write(f.image)
+    frames = [f.image for f in clip_frames(path, fps=None)]
+    assert len(frames) == FRAMES and frames[0].shape == (HEIGHT, WIDTH, 3)
+    return frames
+
+
+def _random_head(head: str, tmp_path: Path) -> LoadedWeights:
+    """A network with the given head and a random output layer, so that its outputs move from frame to frame."""
+    torch.manual_seed(2)
+    net = GammaNet(head=head).eval()
+    with torch.no_grad():
+        net.out_linear.weight.normal_(0.0, 0.5)
+        if head == "gamma":  # a around 1: a usable gamma rather than the ReLU's floor
+            net.out_linear.bias.fill_(1.0)
+    seeds = 2 if head == "gamma" else 0
+    return LoadedWeights(
+        net=net,
+        name=head,
+        sha256="3" * 64,
+        path=tmp_path / f"{head}.safetensors",
+        card={"input_size": 32, "seed_frames": seeds},
+    )
+
+
+def _weights(which: str, tmp_path: Path, request: pytest.FixtureRequest) -> tuple[LoadedWeights, int]:
+    if which == "shipped":
+        weights = load_weights()
+        return weights, int(weights.card["input_size"])
+    if which == "authors":
+        return load_weights(request.getfixturevalue("authors_checkpoint")), 48
+    return _random_head(which, tmp_path), 32
+
+
+def _run_host(host: Path, onnx: Path, frames: list[np.ndarray], out: Path) -> list[dict[str, object]]:
+    raw = b"".join(np.ascontiguousarray(f).tobytes() for f in frames)
+    result = subprocess.run(
+        [str(host), str(onnx), str(WIDTH), str(HEIGHT), "--out", str(out)], input=raw, capture_output=True, timeout=300
+    )
+    assert result.returncode == 0, result.stderr.decode()
+    return [json.loads(line) for line in result.stdout.decode().splitlines()]
+
+
+def _python_correction(head: str, raw: list[float]) -> tuple[np.ndarray, dict[str, object]]:
+    """colonlight's own rule (methods/rnn) applied to the host's raw outputs: the table and the recorded values."""
+    if head == "curve":
+        lut, values, gamma, _clamped = curve_correction(raw)
+        return (np.arange(256, dtype=np.uint8) if lut is None else lut), {"gamma": gamma, "curve": values}
+    if head == "gain-gamma":
+        gain, gamma, _clamped = clamp_gain_gamma(*raw)
+        return gain_gamma_lut(gain, gamma), {"gamma": gamma, "gain": gain}
+    gamma, _clamped = clamp_gamma(raw[0])
+    return gamma_lut(gamma), {"gamma": gamma}
+
+
+@pytest.mark.parametrize("which", ["shipped", "authors", "gamma", "gain-gamma", "curve"])
+def test_the_cpp_host_matches_torch_frame_by_frame(
+    which: str, host: Path, clip: list[np.ndarray], tmp_path: Path, request: pytest.FixtureRequest
+) -> None:
+    weights, size = _weights(which, tmp_path, request)
+    head = weights.head
+    onnx = tmp_path / "model.onnx"
+    export_onnx(weights, onnx, size=size)
+    records = _run_host(host, onnx, clip, tmp_path / "enhanced.rgb")
+    enhanced = np.fromfile(tmp_path / "enhanced.rgb", np.uint8).reshape(-1, HEIGHT, WIDTH, 3)
+    assert len(records) == len(enhanced) == FRAMES and [r["index"] for r in records] == list(range(FRAMES))
+
+    method = RecurrentGammaMethod(weights=weights, model_size=size, device="cpu")
+    seeds, stream = method.seeds, method.stream()
+    theirs = np.array([r["head"] for r in records], dtype=np.float64)
+    ours_raw, moved = [], []
+    for i, (frame, record, out) in enumerate(zip(clip, records, enhanced, strict=True)):
+        (result,) = stream.push(frame)
+        raw = result.info["z"] if head != "gamma" else [result.info["a"]]
+        ours_raw.append(raw)
+        assert record["seed"] == (i < seeds)
+        if record["seed"]:
+            assert np.array_equal(out, frame) and record["gamma"] == 1.0
+            continue
+        # The host's correction is colonlight's rule exactly, given the same raw outputs ...
+        lut, values = _python_correction(head, [float(v) for v in record["head"]])
+        assert np.array_equal(out, lut[frame]), f"frame {i}: the host's table differs from colonlight's"
+        for key, want in values.items():
+            assert np.allclose(record[key], want, rtol=0, atol=1e-12), (i, key, record[key], want)
+        # ... and within ONNX Runtime's float noise of what colonlight enhance computes with torch.
+        assert math.isclose(record["gamma"], result.gamma, rel_tol=0, abs_tol=1e-4)
+        if head == "gain-gamma":
+            assert math.isclose(record["gain"], result.info["gain"], rel_tol=0, abs_tol=1e-4)
+        if head == "curve":
+            assert np.max(np.abs(np.array(record["curve"]) - np.array(result.info["curve"]))) <= 1e-4
+        assert np.max(np.abs(out.astype(int) - result.frame.astype(int))) <= 1  # a rounding at a .5 at most
+        moved.append(result.gamma)
+    assert np.max(np.abs(theirs - np.array(ours_raw))) <= TOLERANCE
+    assert np.ptp(theirs, axis=0).max() > 1e-3, "the clip must move the network's outputs, or this proves little"
+    assert len(moved) == FRAMES - seeds
+
+
+def test_the_cpp_host_fails_in_one_line(host: Path, tmp_path: Path) -> None:
+    usage = subprocess.run([str(host)], capture_output=True, text=True)
+    assert usage.returncode == 2 and "usage: colonlight_host" in usage.stderr
+    missing = subprocess.run([str(host), str(tmp_path / "none.onnx"), "8", "8"], capture_output=True, text=True)
+    assert missing.returncode == 1 and missing.stderr.count("\n") == 1 and "none.onnx.json" in missing.stderr

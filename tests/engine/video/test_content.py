@@ -1,0 +1,268 @@
+"""Content area (``--content auto``): detection of the field of view and fixed text on generated clips, border and
+text pixels written unchanged, gammas on a bordered clip close to those of the same clip without its border, and
+``auto`` bit-identical to ``full`` on clips without a border.
+
+The scene is one rendered synthetic clip (module fixture); borders and text are drawn on it with
+:mod:`colonlight.synth.overlay`, whose masks are the truth.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import av
+import cv2
+import numpy as np
+import pytest
+from colonlight_cli.main import app
+from typer.testing import CliRunner
+
+from colonlight.content import DETECT_FRAMES, BlockStats, ContentStream, detect_area, iou
+from colonlight.methods import create_method
+from colonlight.pipeline import ClipOptions, enhance_clip
+from colonlight.synth import SynthConfig, generate_clip
+from colonlight.synth.overlay import OverlaySpec
+
+from ...media import make_clip
+
+SIZE = (256, 192)  # width, height: 4:3 like a scope's picture
+N_FRAMES = 2 * DETECT_FRAMES
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def scene() -> np.ndarray:
+    """``(N, H, W, 3)`` frames of a moving synthetic clip (seed 1: the camera travels, the lighting flickers)."""
+    cfg = SynthConfig.sample(
+        np.random.default_rng([1, 0]), split="train", width=SIZE[0], height=SIZE[1], n_frames=N_FRAMES
+    )
+    return np.stack([f.image for f in generate_clip(cfg, seed=1)])
+
+
+def drawn(frames: np.ndarray, spec: OverlaySpec) -> np.ndarray:
+    return np.stack([spec.apply(f) for f in frames])
+
+
+def truth(spec: OverlaySpec) -> tuple[np.ndarray, np.ndarray]:
+    """``(fov, content)`` masks as drawn: content = field of view less text."""
+    fov, text = spec.masks(SIZE[1], SIZE[0])
+    return fov, fov & ~text
+
+
+def block_area(frames: np.ndarray) -> object:
+    stats = BlockStats()
+    for f in frames[:DETECT_FRAMES]:
+        stats.add(f)
+    return detect_area(stats)
+
+
+def write_folder(folder: Path, frames: np.ndarray) -> Path:
+    folder.mkdir(parents=True)
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(folder / f"{i:06d}.png"), cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+    return folder
+
+
+def read_frames(folder: Path) -> list[np.ndarray]:
+    return [cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) for p in sorted(folder.glob("*.png"))]
+
+
+def run_stream(stream: object, frames: np.ndarray) -> list:
+    results = []
+    for f in frames:
+        results += stream.push(f)  # type: ignore[attr-defined]
+    return results + stream.flush()  # type: ignore[attr-defined]
+
+
+# ----------------------------------------------------------------------------------------------- detection
+
+
+@pytest.mark.parametrize(
+    "spec",
+    [
+        OverlaySpec("round"),
+        OverlaySpec("octagon"),
+        OverlaySpec("round", text=True),
+        OverlaySpec("octagon", text=True),
+        OverlaySpec("round", fov=0.8, text=True),
+        OverlaySpec("none", text=True),
+    ],
+    ids=lambda s: f"{s.border}-{s.fov}-{'text' if s.text else 'plain'}",
+)
+def test_detects_field_of_view_and_text(scene: np.ndarray, spec: OverlaySpec) -> None:
+    fov, content = truth(spec)
+    area = block_area(drawn(scene, spec))
+    assert iou(area.fov, fov) >= 0.98  # measured 0.990 .. 1.000
+    assert iou(area.mask, content) >= 0.98
+    text_in_fov = fov & ~content
+    if text_in_fov.sum() > 100:  # text over the picture (not only on the border): nearly all of it kept out
+        assert (text_in_fov & ~area.mask).sum() >= 0.9 * text_in_fov.sum()
+
+
+def test_no_border_no_text_is_the_full_frame(scene: np.ndarray) -> None:
+    """Plain frames, also dark ones (underexposure is what colonlight is for) and a flickering still scene."""
+    for scale in (1.0, 0.3, 0.1):
+        dark = np.clip(scene.astype(np.float32) * scale, 0, 255).astype(np.uint8)
+        assert block_area(dark).is_full, scale
+    rng = np.random.default_rng(0)
+    still = np.stack(
+        [
+            np.clip(scene[0] * (1 + 0.3 * np.sin(i)) + rng.normal(0, 1, scene[0].shape), 0, 255)
+            for i in range(DETECT_FRAMES)
+        ]
+    ).astype(np.uint8)
+    assert block_area(still).is_full
+
+
+def test_detection_on_an_h264_clip_from_colonlight_synth(tmp_path: Path) -> None:
+    """`colonlight synth --border octagon --text` writes content.png; detection on its decoded mp4 matches it."""
+    out = tmp_path / "syn"
+    result = runner.invoke(
+        app,
+        [
+            "synth",
+            str(out),
+            "--frames",
+            str(DETECT_FRAMES),
+            "--width",
+            "192",
+            "--height",
+            "144",
+            "--border",
+            "octagon",
+            "--text",
+            "--seed",
+            "3",
+            "-j",
+            "1",
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    clip = out / "clip_00000"
+    meta = json.loads((clip / "synth.json").read_text())
+    assert meta["overlay"] == {"border": "octagon", "fov": 0.96, "text": True}
+    expected = cv2.imread(str(clip / "content.png"), cv2.IMREAD_GRAYSCALE) > 0
+    with av.open(str(clip / "clip.mp4")) as container:
+        frames = np.stack([f.to_ndarray(format="rgb24") for f in container.decode(video=0)])
+    assert iou(block_area(frames).mask, expected) >= 0.95  # measured 0.98 (H.264 softens the edges)
+    bad = runner.invoke(app, ["synth", str(tmp_path / "x"), "--border", "hexagon"])
+    assert bad.exit_code == 2 and "--border" in bad.output
+
+
+# ----------------------------------------------------------------------------------------------- outputs
+
+
+@pytest.mark.parametrize(
+    "spec", [OverlaySpec("round", text=True), OverlaySpec("octagon", text=True)], ids=["round", "octagon"]
+)
+def test_border_and_text_pixels_unchanged(scene: np.ndarray, spec: OverlaySpec, tmp_path: Path) -> None:
+    """The shipped model through the pipeline: outside the drawn content every output pixel is the input's."""
+    frames = drawn(scene, spec)
+    _, content = truth(spec)
+    enhance_clip(write_folder(tmp_path / "clip", frames), tmp_path / "out", create_method("rnn"), ClipOptions(fps=None))
+    out = read_frames(tmp_path / "out" / "frames")
+    assert len(out) == len(frames)
+    for f_in, f_out in zip(frames, out, strict=True):
+        assert np.array_equal(f_out[~content], f_in[~content])
+    record = json.loads((tmp_path / "out" / "gammas.json").read_text())
+    assert record["settings"]["content"] == "auto"
+    assert record["frames"][0]["content"]["fov_fraction"] < 0.95  # the area is recorded with the first frame
+    changed = [not np.array_equal(a[content], b[content]) for a, b in zip(frames, out, strict=True)]
+    assert sum(changed) >= len(frames) - 2 - 3  # the content is enhanced (seed frames and gamma ~ 1 aside)
+
+
+@pytest.mark.parametrize("method", ["he", "deflicker"])
+def test_any_method_keeps_border_pixels(scene: np.ndarray, method: str) -> None:
+    """A frame-statistics method and a look-ahead method (results held back) behind the same wrapper."""
+    spec = OverlaySpec("octagon", text=True)
+    frames = drawn(scene, spec)
+    _, content = truth(spec)
+    results = run_stream(ContentStream(create_method(method).stream()), frames)
+    assert len(results) == len(frames)
+    for f_in, res in zip(frames, results, strict=True):
+        assert np.array_equal(res.frame[~content], f_in[~content])
+    plain = run_stream(create_method(method).stream(), frames)
+    assert any(not np.array_equal(a.frame[content], b.frame[content]) for a, b in zip(results, plain, strict=True))
+
+
+def test_gammas_match_the_clip_without_its_border(scene: np.ndarray) -> None:
+    """Tolerance: the bordered clip hides picture the plain clip shows (an octagon at 0.96 keeps 89% of the frame,
+    a disc of 0.96 x height keeps 54%), so the network sees less; the gamma may move by that much and no more.
+    0.02 in gamma is under 2 grey levels at mid-grey. Measured on 3 seeds, 54 frames: octagon max |dg| 0.005-0.012
+    (full on the bordered clip: 0.034-0.124); disc mean |dg| 0.016-0.019 (full: 0.026-0.070)."""
+    method = create_method("rnn")
+    plain = np.array([r.gamma for r in run_stream(method.stream(), scene)])[2:]
+    for spec, stat, tol in (
+        (OverlaySpec("octagon", text=True), np.max, 0.02),
+        (OverlaySpec("round", text=True), np.mean, 0.03),
+    ):
+        frames = drawn(scene, spec)
+        auto = np.array([r.gamma for r in run_stream(ContentStream(method.stream()), frames)])[2:]
+        full = np.array([r.gamma for r in run_stream(method.stream(), frames)])[2:]
+        dev_auto, dev_full = float(stat(np.abs(auto - plain))), float(stat(np.abs(full - plain)))
+        assert dev_auto <= tol, (spec, dev_auto, dev_full)
+        assert dev_full > 2 * dev_auto, (spec, dev_auto, dev_full)  # the border does move the gammas
+
+
+def _without_content_setting(path: Path) -> dict:
+    record = json.loads(path.read_text())
+    assert record["settings"].pop("content") in ("auto", "full")
+    return record
+
+
+def test_auto_is_bit_identical_on_clips_without_a_border(scene: np.ndarray, tmp_path: Path) -> None:
+    """The CLI with the shipped model, --content auto vs full: same frame bytes, same gammas.json (but for the
+    recorded content setting), on a synthetic clip and on an H.264 test clip."""
+    inputs = [write_folder(tmp_path / "synthetic", scene), make_clip(tmp_path / "index.mp4", n_frames=30, fps=25)]
+    outs = {}
+    for mode in ("auto", "full"):
+        out = tmp_path / mode
+        result = runner.invoke(
+            app, ["enhance", *map(str, inputs), "-o", str(out), "-q", "--fps", "0", "--content", mode]
+        )
+        assert result.exit_code == 0, result.output
+        outs[mode] = out
+    for clip in ("synthetic", "index"):
+        a, b = outs["auto"] / clip, outs["full"] / clip
+        frames_a = sorted((a / "frames").iterdir())
+        assert len(frames_a) >= 30
+        assert [p.read_bytes() for p in frames_a] == [p.read_bytes() for p in sorted((b / "frames").iterdir())]
+        assert _without_content_setting(a / "gammas.json") == _without_content_setting(b / "gammas.json")
+    gammas = [f["gamma"] for f in json.loads((outs["auto"] / "synthetic" / "gammas.json").read_text())["frames"]]
+    assert any(abs(g - 1.0) > 0.01 for g in gammas)  # the model did something to compare
+
+
+# ----------------------------------------------------------------------------------------------- changes
+
+
+def test_area_changes_only_after_agreeing_blocks(scene: np.ndarray) -> None:
+    """A border that appears mid-clip is adopted after two blocks; a dark moment does not drop it."""
+    spec = OverlaySpec("octagon")
+    fov, _ = truth(spec)
+    bordered = drawn(scene, spec)
+    dark = (bordered[:DETECT_FRAMES] // 40).astype(np.uint8)  # scope in the dark: everything unlit
+    frames = np.concatenate([scene, bordered, dark, bordered])
+    stream = ContentStream(create_method("none").stream())
+    results = run_stream(stream, frames)
+    notes = [(i, r.info["content"]) for i, r in enumerate(results) if "content" in r.info]
+    assert len(notes) == 1, notes
+    index, note = notes[0]
+    # Blocks of the border start at frame 36; the second agreeing one ends at 71; the next frame has the area.
+    assert index == len(scene) + 2 * DETECT_FRAMES, notes
+    assert iou(stream.area.fov, fov) >= 0.98 and note["fov_fraction"] < 0.95  # type: ignore[union-attr]
+
+
+def test_bad_content_option_is_refused(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["enhance", str(tmp_path), "--content", "border"])
+    assert result.exit_code == 2 and "content" in result.output
+    with pytest.raises(ValueError, match="content must be one of auto, full"):
+        ClipOptions(content="border")
+
+
+def test_a_new_frame_size_is_a_clear_error() -> None:
+    stream = ContentStream(create_method("none").stream(), detect_frames=2)
+    for i in range(3):
+        stream.push(np.full((20, 30, 3), 100 + i, np.uint8))
+    with pytest.raises(ValueError, match="30x21, the stream started at 30x20"):
+        stream.push(np.zeros((21, 30, 3), np.uint8))

@@ -1,0 +1,72 @@
+"""Damage part way through a clip (packets overwritten mid-stream) is decoded past as the ``ffmpeg`` tool decodes
+past it: the frames ``ffmpeg -vf fps=18`` outputs on the damaged file are ours, pixel for pixel. The decoder
+rejecting a packet used to end the clip there (an mp4 kept 30 of 72 frames and failed, an avi 19 of 71)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from colonlight_cli.main import app
+from typer.testing import CliRunner
+
+from colonlight.video import DecodeReport, iter_video_frames
+
+from ...media import X264, corrupted_copy, ffmpeg_exe, ffmpeg_frames, make_clip, needs_ffmpeg, read_index
+
+MPEG4 = ("-c:v", "mpeg4", "-q:v", "2")
+VP8 = ("-c:v", "libvpx", "-b:v", "1M")
+GOP = ("-g", "10")  # a keyframe every 10 frames: decoding picks up again soon after the damage
+
+CONTAINERS: dict[str, Callable[[Path], Path]] = {
+    "mp4": lambda d: make_clip(d / "c.mp4", 100, 25, codec_args=X264, output_args=GOP),
+    "mkv": lambda d: make_clip(d / "c.mkv", 100, 25, codec_args=X264, output_args=GOP),
+    "ts": lambda d: make_clip(d / "c.ts", 100, 25, codec_args=X264, output_args=GOP),
+    "avi": lambda d: make_clip(d / "c.avi", 100, 25, codec_args=MPEG4, output_args=GOP),
+    "webm": lambda d: make_clip(d / "c.webm", 100, 25, codec_args=VP8, output_args=GOP),
+}
+
+
+@pytest.fixture(scope="module")
+def sources(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    if ffmpeg_exe() is None:
+        pytest.skip("imageio-ffmpeg's ffmpeg binary is not available")
+    root = tmp_path_factory.mktemp("damage")
+    return {name: make(root) for name, make in CONTAINERS.items()}
+
+
+@needs_ffmpeg
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("name", list(CONTAINERS))
+def test_damage_mid_stream_gives_ffmpegs_frames(sources: dict[str, Path], tmp_path: Path, name: str, seed: int) -> None:
+    src = sources[name]
+    bad = corrupted_copy(src, tmp_path / f"bad{src.suffix}", start=0.4, length=0.02, seed=seed)
+    reference = list(ffmpeg_frames(bad, vf="fps=18"))
+    report = DecodeReport()
+    ours = [f.image for f in iter_video_frames(bad, 18, report=report)]  # no exception: decoded past the damage
+    assert len(reference) >= 70  # ffmpeg went on to the end (100 frames at 25 fps: 72 at 18 fps)
+    assert len(ours) == len(reference)
+    assert [read_index(f) for f in ours] == [read_index(f) for f in reference]  # the same frame choice
+    if name != "webm":  # libvpx's error concealment may vary with its threads; H.264 and MPEG-4 are exact
+        assert all(np.array_equal(a, b) for a, b in zip(ours, reference, strict=True))
+    assert read_index(ours[-1]) == read_index(reference[-1]) >= 95  # the frames after the damage too
+
+
+@needs_ffmpeg
+def test_cli_keeps_a_damaged_clip_with_a_warning(sources: dict[str, Path], tmp_path: Path) -> None:
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    bad = corrupted_copy(sources["mp4"], videos / "damaged.mp4", start=0.4, length=0.02, seed=0)
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["enhance", str(videos), "-o", str(out), "--method", "none", "-q"])
+    assert result.exit_code == 0, result.output
+    warnings = [line for line in result.output.splitlines() if line.startswith("warning")]
+    assert len(warnings) == 1 and str(bad) in warnings[0] and "damaged" in warnings[0], result.output
+    gammas = json.loads((out / "damaged" / "gammas.json").read_text())
+    assert gammas["frame_count"] == len(list(ffmpeg_frames(bad, vf="fps=18")))
+    assert "truncated" not in gammas and any("damaged" in w for w in gammas["warnings"])
+    entry = json.loads((out / "manifest.json").read_text())["clips"][0]
+    assert entry["status"] == "done" and entry["frames"] == gammas["frame_count"]

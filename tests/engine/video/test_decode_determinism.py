@@ -1,0 +1,77 @@
+"""``enhanced.mp4`` is byte-identical across runs with the same inputs and settings, on any machine.
+
+x264 used to take one thread, and one slice per frame, per core the process may use (``sched_getaffinity``):
+two runs differed as soon as they saw different cores (a container's CPU limit, ``taskset``, another machine).
+The writer now fixes its threads and writes no muxer version. Two real ``colonlight enhance`` processes, one
+pinned to a single core, must write the same bytes.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from colonlight.video import VideoWriter
+
+from ...media import index_frame, make_clip, needs_ffmpeg
+
+CORES = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+needs_two_cores = pytest.mark.skipif(len(CORES) < 2, reason="needs two usable cores to vary the encoder's view")
+
+
+def _colonlight() -> list[str]:
+    exe = Path(sys.executable).parent / "colonlight"
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "colonlight_cli.main"]
+
+
+@needs_ffmpeg
+@needs_two_cores
+@pytest.mark.timeout(600)
+def test_two_cli_runs_write_identical_videos(tmp_path: Path) -> None:
+    clip = make_clip(tmp_path / "clip.mp4", 40, 25, size=(640, 360))
+    outputs = []
+    for name, cores in (("all", CORES), ("one", CORES[:1])):
+        out = tmp_path / name
+        cmd = [
+            *_colonlight(),
+            "enhance",
+            str(clip),
+            "-o",
+            str(out),
+            "--method",
+            "gamma",
+            "--gamma",
+            "0.7",
+            "--video",
+            "--no-frames",
+            "-q",
+        ]
+        proc = subprocess.run(
+            cmd, capture_output=True, text=True, timeout=300, preexec_fn=lambda c=set(cores): os.sched_setaffinity(0, c)
+        )
+        assert proc.returncode == 0, proc.stderr
+        outputs.append((out / "clip" / "enhanced.mp4").read_bytes())
+    assert len(outputs[0]) > 1000 and outputs[0] == outputs[1]
+
+
+@needs_two_cores
+def test_writer_bytes_do_not_depend_on_the_cores_it_sees(tmp_path: Path) -> None:
+    frames = [index_frame(i, 320, 240) for i in range(30)]
+    written = []
+    before = os.sched_getaffinity(0)
+    try:
+        for cores in (set(CORES), set(CORES[:1])):
+            os.sched_setaffinity(0, cores)
+            path = tmp_path / f"{len(cores)}.mp4"
+            with VideoWriter(path, fps=18) as w:
+                for f in frames:
+                    w.write(f)
+            written.append(path.read_bytes())
+    finally:
+        os.sched_setaffinity(0, before)
+    assert written[0] == written[1]
+    assert b"Lavf" not in written[0]  # no muxer version string

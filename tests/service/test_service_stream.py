@@ -1,0 +1,481 @@
+"""``/v1/stream`` against a real ``colonlight serve`` (uvicorn) on loopback, with a real WebSocket client.
+
+One server for the module: an API key, at most 2 streams, 1 MiB messages, short idle and send timeouts, so that
+every limit can be reached quickly. The results are checked against the engine run here on the same frames.
+"""
+
+from __future__ import annotations
+
+import base64
+import contextlib
+import json
+import math
+import os
+import socket
+import struct
+import subprocess
+import sys
+import time
+import zlib
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import cv2
+import httpx
+import numpy as np
+import pytest
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import ClientConnection, connect
+
+from colonlight.methods import create_method
+
+from ..media import make_clip
+from ..service_server import ServiceServer
+
+pytestmark = pytest.mark.timeout(120)
+
+KEY = "s3cret-k3y"
+SEND_TIMEOUT_S = 3.0
+IDLE_S = 6.0
+START_TIMEOUT_S = 180.0  # loading torch takes a while on a busy machine
+
+
+@pytest.fixture(scope="module")
+def weights(random_weights: Path) -> Path:
+    return random_weights
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory, weights: Path) -> Iterator[ServiceServer]:
+    env = {
+        "COLONLIGHT_WEIGHTS": str(weights),
+        "COLONLIGHT_WORKERS": "1",
+        "COLONLIGHT_API_KEY": KEY,
+        "COLONLIGHT_STREAM_MAX": "2",
+        "COLONLIGHT_STREAM_MAX_FRAME_MB": "1",
+        "COLONLIGHT_STREAM_IDLE_SECONDS": str(IDLE_S),
+        "COLONLIGHT_STREAM_SEND_TIMEOUT_SECONDS": str(SEND_TIMEOUT_S),
+    }
+    srv = ServiceServer(tmp_path_factory.mktemp("stream") / "data", env).start(timeout=START_TIMEOUT_S)
+    try:
+        yield srv
+        assert "Traceback" not in srv.log(), srv.log()
+    finally:
+        srv.stop()
+
+
+def ws_url(srv: ServiceServer) -> str:
+    return srv.url.replace("http://", "ws://") + "/v1/stream"
+
+
+def open_stream(srv: ServiceServer, key: str | None = KEY, **headers: str) -> ClientConnection:
+    hdrs = dict(headers)
+    if key is not None:
+        hdrs["X-API-Key"] = key
+    return connect(
+        ws_url(srv),
+        additional_headers=hdrs,
+        proxy=None,
+        max_size=None,
+        compression=None,
+        open_timeout=20,
+        close_timeout=5,
+    )
+
+
+def recv_json(ws: ClientConnection, timeout: float = 60) -> dict[str, Any]:
+    message = ws.recv(timeout)
+    assert isinstance(message, str), f"expected a JSON text message, got {len(message)} bytes"
+    value: dict[str, Any] = json.loads(message)
+    return value
+
+
+def closed_with(ws: ClientConnection, timeout: float = 30) -> tuple[int, str, list[dict[str, Any]]]:
+    """Read until the server closes; (close code, reason, the JSON messages before it)."""
+    messages: list[dict[str, Any]] = []
+    with pytest.raises(ConnectionClosed) as info:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            m = ws.recv(max(0.1, deadline - time.monotonic()))
+            if isinstance(m, str):
+                messages.append(json.loads(m))
+    rcvd = info.value.rcvd
+    assert rcvd is not None, "the connection dropped without a close frame"
+    return rcvd.code, rcvd.reason, messages
+
+
+def scene(n: int, w: int = 160, h: int = 120, seed: int = 0) -> list[np.ndarray]:
+    """A dark tunnel whose light swings, with some texture: what the model reacts to."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    frames = []
+    for i in range(n):
+        r = np.hypot(x - w / 2 - 10 * math.sin(i / 3), y - h / 2) / (0.5 * math.hypot(w, h))
+        lum = np.clip(r * 1.6, 0, 1) * (0.5 + 0.4 * math.sin(i / 2.5)) * (0.8 + 0.2 * np.sin(r * 30 - i))
+        rgb = lum[..., None] * np.array([230, 130, 110], np.float32) + rng.normal(0, 3, (h, w, 1))
+        frames.append(np.clip(rgb, 0, 255).astype(np.uint8))
+    return frames
+
+
+def png(rgb: np.ndarray) -> bytes:
+    return bytes(cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))[1])
+
+
+def jpeg(rgb: np.ndarray, quality: int = 90) -> bytes:
+    return bytes(cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])[1])
+
+
+def decode(data: bytes) -> np.ndarray:
+    return cv2.cvtColor(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+
+
+def png_bomb(width: int, height: int) -> bytes:
+    """A valid grey PNG of ``width x height`` zeros: tens of kB that would decode to ``width * height * 3`` bytes."""
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    comp = zlib.compressobj(9)
+    row = b"\x00" * (width + 1)  # filter byte + one byte per pixel
+    data = b"".join(comp.compress(row) for _ in range(height)) + comp.flush()
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", data) + chunk(b"IEND", b"")
+
+
+def engine_run(weights: Path, frames: list[np.ndarray]) -> list[tuple[float | None, np.ndarray]]:
+    stream = create_method("rnn", weights=str(weights), device="cpu").stream()
+    return [(r.gamma, r.frame) for f in frames for r in stream.push(f)]
+
+
+def metric(srv: ServiceServer, name: str) -> float:
+    text = httpx.get(srv.url + "/metrics", headers={"X-API-Key": KEY}, timeout=10).text
+    return sum(float(line.rsplit(" ", 1)[1]) for line in text.splitlines() if line.startswith(name))
+
+
+# ---------------------------------------------------------------------------------------------- the protocol
+
+
+def test_results_come_in_order_with_one_state_per_connection(server: ServiceServer, weights: Path) -> None:
+    """Two connections at once, frames interleaved: each answer is the engine's own result for its stream."""
+    a_frames = scene(10, seed=1)
+    b_frames = scene(10, seed=2)[::-1]
+    with open_stream(server) as a, open_stream(server, key=None, Authorization=f"Bearer {KEY}") as b:
+        a.send(json.dumps({"type": "start", "format": "png"}))
+        b.send(json.dumps({"type": "start", "format": "png", "method": "rnn"}))
+        ready = recv_json(a)
+        assert recv_json(b)["type"] == "ready"
+        assert ready["type"] == "ready" and ready["method"] == "rnn" and ready["format"] == "png"
+        assert ready["parameters"]["seeds"] == 2 and ready["max_pixels"] > 0
+        got: dict[str, list[tuple[dict[str, Any], np.ndarray]]] = {"a": [], "b": []}
+        for i in range(10):
+            for ws, frames in ((a, a_frames), (b, b_frames)):
+                ws.send(json.dumps({"type": "frame", "time": i / 30}))
+                ws.send(png(frames[i]))
+            for name, ws in (("a", a), ("b", b)):
+                record = recv_json(ws)
+                image = ws.recv(60)
+                assert isinstance(image, bytes) and len(image) == record["bytes"]
+                got[name].append((record, decode(image)))
+        a.send(json.dumps({"type": "end"}))
+        code, reason, tail = closed_with(a)
+        assert (code, tail[-1]) == (1000, {"type": "end", "frames": 10, "errors": 0})
+    for name, frames in (("a", a_frames), ("b", b_frames)):
+        expected = engine_run(weights, frames)
+        records = [r for r, _ in got[name]]
+        assert [r["index"] for r in records] == list(range(10))
+        assert [r["time"] for r in records] == [i / 30 for i in range(10)]
+        assert [r.get("seed", False) for r in records] == [True, True] + [False] * 8
+        assert all((r["width"], r["height"]) == (160, 120) and r["latency_ms"] >= 0 for r in records)
+        for (record, image), (gamma, frame) in zip(got[name], expected, strict=True):
+            assert record["gamma"] == pytest.approx(gamma, abs=1e-5)
+            assert np.abs(image.astype(int) - frame).max() <= 1  # PNG: lossless, up to a LUT rounding
+        assert len({round(r["gamma"], 4) for r in records[2:]}) > 3  # the state moves: not one constant gamma
+    assert got["a"][4][0]["gamma"] != pytest.approx(got["b"][4][0]["gamma"], abs=1e-4)
+
+
+def test_jpeg_frames_without_a_start_message(server: ServiceServer) -> None:
+    """The minimal client: binary frames only; the server's defaults apply and JPEG comes back."""
+    with open_stream(server) as ws:
+        ws.send(jpeg(scene(1, 320, 240)[0]))
+        ready = recv_json(ws)
+        record = recv_json(ws)
+        image = ws.recv(60)
+        assert ready["type"] == "ready" and ready["format"] == "jpeg"
+        assert record["type"] == "result" and record["index"] == 0 and record["time"] is None
+        assert isinstance(image, bytes) and image[:2] == b"\xff\xd8" and decode(image).shape == (240, 320, 3)
+        ws.send(json.dumps({"type": "end"}))
+        assert closed_with(ws)[0] == 1000
+
+
+def test_gamma_records_only(server: ServiceServer) -> None:
+    with open_stream(server) as ws:
+        ws.send(json.dumps({"type": "start", "frames": False}))
+        assert recv_json(ws)["frames"] is False
+        for f in scene(3):
+            ws.send(png(f))
+        records = [recv_json(ws) for _ in range(3)]  # JSON only: no binary message in between
+        assert [r["index"] for r in records] == [0, 1, 2] and all(r["bytes"] == 0 for r in records)
+        ws.send(json.dumps({"type": "end"}))
+        assert closed_with(ws)[0] == 1000
+
+
+# ---------------------------------------------------------------------------------------------- the key and the cap
+
+
+def test_api_key_rules(server: ServiceServer) -> None:
+    with open_stream(server, key=None) as ws:  # no key at all: the first message is refused
+        ws.send(png(scene(1)[0]))
+        code, reason, messages = closed_with(ws)
+        assert (code, reason, messages[-1]["code"]) == (1008, "unauthorized", "unauthorized")
+        assert "API key" in messages[-1]["message"]
+    with open_stream(server, key="wrong") as ws:
+        ws.send(json.dumps({"type": "start", "api_key": "also wrong"}))
+        assert closed_with(ws)[:2] == (1008, "unauthorized")
+    with open_stream(server, key=None) as ws:  # a browser: the key in the start message
+        ws.send(json.dumps({"type": "start", "api_key": KEY}))
+        assert recv_json(ws)["type"] == "ready"
+
+
+def test_cap_on_concurrent_streams(server: ServiceServer) -> None:
+    rejected_before = metric(server, 'colonlight_requests_rejected_total{reason="streams_full"}')
+    with open_stream(server) as one, open_stream(server) as two:
+        for ws in (one, two):
+            ws.send(json.dumps({"type": "start"}))
+            assert recv_json(ws)["type"] == "ready"
+        with open_stream(server) as three:  # refused at once: its key came in the headers
+            code, reason, messages = closed_with(three)
+        assert code == 1013 and reason.startswith("busy: 2 streams open")
+        assert messages[-1]["code"] == "busy" and "COLONLIGHT_STREAM_MAX" in messages[-1]["message"]
+        two.send(json.dumps({"type": "end"}))
+        assert closed_with(two)[0] == 1000
+        with open_stream(server) as four:  # the place given back is taken again
+            four.send(json.dumps({"type": "start"}))
+            assert recv_json(four)["type"] == "ready"
+    assert metric(server, 'colonlight_requests_rejected_total{reason="streams_full"}') == rejected_before + 1
+
+
+# ---------------------------------------------------------------------------------------------- bad input
+
+
+def test_bad_frames_and_messages_are_skipped(server: ServiceServer, weights: Path) -> None:
+    good = scene(3)
+    bad: list[tuple[bytes | str, str, str]] = [
+        (b"GIF89a not ours", "bad_frame", "not a JPEG or PNG image"),
+        (b"", "bad_frame", "not a JPEG or PNG image (0 bytes"),
+        (jpeg(good[0])[:20], "bad_frame", "truncated JPEG"),
+        (png(good[0])[:60], "bad_frame", "could not be decoded"),
+        (png_bomb(8000, 8000), "bad_frame", "8000x8000 = 64000000 pixels, over the limit"),
+        ("not json", "bad_message", "must be a JSON object"),
+        (json.dumps({"no": "type"}), "bad_message", 'with a "type"'),
+        (json.dumps({"type": "dance"}), "bad_message", "unknown message type 'dance'"),
+        (json.dumps({"type": "frame", "time": "noon"}), "bad_message", '"time" must be a finite number'),
+        ('{"type": "frame", "time": NaN}', "bad_message", '"time" must be a finite number'),
+        (json.dumps({"type": "start"}), "bad_message", "has started already"),
+    ]
+    rss_before = server_rss(server)
+    with open_stream(server) as ws:
+        ws.send(json.dumps({"type": "start", "format": "png", "frames": False}))
+        assert recv_json(ws)["type"] == "ready"
+        ws.send(png(good[0]))
+        records = [recv_json(ws)]
+        for message, code, text in bad:
+            ws.send(message)
+            error = recv_json(ws)
+            assert error["type"] == "error" and error["code"] == code and text in error["message"], error
+        for f in good[1:]:
+            ws.send(png(f))
+            records.append(recv_json(ws))
+        ws.send(json.dumps({"type": "end"}))
+        code, _, tail = closed_with(ws)
+        assert (code, tail[-1]) == (1000, {"type": "end", "frames": 3, "errors": len(bad)})
+    # the stream and its state went on as if the bad messages had not been sent
+    assert [r["index"] for r in records] == [0, 1, 2]
+    expected = engine_run(weights, good)
+    assert [r["gamma"] for r in records] == pytest.approx([g for g, _ in expected], abs=1e-5)
+    assert server_rss(server) - rss_before < 100 * 2**20  # the 8000x8000 PNG (192 MB as RGB) was never decoded
+
+
+def test_a_message_over_the_size_limit_closes_with_1009(server: ServiceServer) -> None:
+    # The server closes as soon as the frame header announces too many bytes; a client still writing the rest can
+    # then see the connection reset, which drops the close frame on its side. That race is the client's, so a few
+    # attempts are made: one must show the 1009, and the server must stay healthy after every one.
+    codes = []
+    for _ in range(3):
+        with open_stream(server) as ws:
+            ws.send(json.dumps({"type": "start"}))
+            assert recv_json(ws)["type"] == "ready"
+            with contextlib.suppress(ConnectionClosed, OSError):
+                ws.send(b"\xff\xd8" + bytes(2 * 2**20))  # 2 MiB, over COLONLIGHT_STREAM_MAX_FRAME_MB=1
+            try:
+                codes.append(closed_with(ws)[0])
+            except (ConnectionClosed, OSError, AssertionError):  # reset: no close frame reached this side
+                codes.append(None)
+        assert httpx.get(server.url + "/healthz", timeout=10).status_code == 200
+        if 1009 in codes:
+            break
+    assert 1009 in codes, codes
+
+
+def test_bad_start_options_close_with_1008(server: ServiceServer) -> None:
+    for options, text in (
+        ({"method": "magic"}, "unknown method 'magic'"),
+        ({"quality": 500}, "quality"),
+        ({"gamma": 2.0}, "gamma applies only to method gamma"),
+        ({"colour": "blue"}, "colour"),
+    ):
+        with open_stream(server) as ws:
+            ws.send(json.dumps({"type": "start", **options}))
+            code, reason, messages = closed_with(ws)
+            assert code == 1008 and messages[-1]["code"] == "validation_error", messages
+            assert text in messages[-1]["message"]
+
+
+def test_an_idle_stream_is_closed(server: ServiceServer) -> None:
+    with open_stream(server) as ws:
+        ws.send(json.dumps({"type": "start"}))
+        assert recv_json(ws)["type"] == "ready"
+        t0 = time.monotonic()
+        code, reason, messages = closed_with(ws, timeout=IDLE_S + 20)
+        assert code == 1001 and messages[-1]["code"] == "idle" and time.monotonic() - t0 >= IDLE_S - 0.5
+
+
+# ---------------------------------------------------------------------------------------------- a slow client
+
+
+def server_rss(srv: ServiceServer) -> int:
+    assert srv.proc is not None
+    for line in Path(f"/proc/{srv.proc.pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) * 1024
+    raise AssertionError("no VmRSS")
+
+
+def ws_frame(payload: bytes, opcode: int) -> bytes:
+    """One masked client frame (RFC 6455 5.2), written by hand so that nothing on our side buffers or reads."""
+    n = len(payload)
+    head = bytes([0x80 | opcode])
+    if n < 126:
+        head += bytes([0x80 | n])
+    elif n < 65536:
+        head += bytes([0x80 | 126]) + struct.pack(">H", n)
+    else:
+        head += bytes([0x80 | 127]) + struct.pack(">Q", n)
+    mask = b"\x5a\xa5\x3c\xc3"
+    masked = (np.frombuffer(payload, np.uint8) ^ np.resize(np.frombuffer(mask, np.uint8), n)).tobytes()
+    return head + mask + masked
+
+
+def raw_client(srv: ServiceServer) -> socket.socket:
+    """A WebSocket client that never reads after the handshake, with small socket buffers."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 64 * 1024)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 64 * 1024)
+    sock.connect(("127.0.0.1", srv.port))
+    key = base64.b64encode(b"0123456789abcdef").decode()
+    sock.sendall(
+        (
+            f"GET /v1/stream HTTP/1.1\r\nHost: 127.0.0.1:{srv.port}\r\nUpgrade: websocket\r\n"
+            f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+            f"X-API-Key: {KEY}\r\n\r\n"
+        ).encode()
+    )
+    response = b""
+    while b"\r\n\r\n" not in response:
+        response += sock.recv(1)  # byte by byte: nothing past the handshake is read
+    assert response.startswith(b"HTTP/1.1 101"), response
+    return sock
+
+
+def test_a_client_that_does_not_read_cannot_grow_server_memory(server: ServiceServer) -> None:
+    """It sends 640x480 frames as fast as it can and reads nothing: the server answers a few, then stops reading
+    (TCP pushes back on the client), its memory stays flat, and after the send timeout it drops the client and
+    its place is free again."""
+    rng = np.random.default_rng(3)
+    frame = ws_frame(png(rng.integers(0, 255, (480, 640, 3), dtype=np.uint8)), 0x2)  # ~0.9 MB, incompressible
+    assert len(frame) < 2**20
+    frames_before = metric(server, "colonlight_frames_processed_total")
+    rss_before = server_rss(server)
+    sock = raw_client(server)
+    try:
+        sock.sendall(ws_frame(json.dumps({"type": "start", "format": "png"}).encode(), 0x1))
+        sock.settimeout(2.0)
+        sent = 0
+        try:
+            for sent in range(200):  # noqa: B007
+                sock.sendall(frame)
+        except TimeoutError:
+            pass  # the server stopped reading: a send made no progress for 2 s
+        assert sent < 60, f"the server kept reading: {sent} frames of 0.9 MB went in unread answers"
+        # the frames already read (one waiting message, one being answered) finish, then the server stalls
+        answered = metric(server, "colonlight_frames_processed_total") - frames_before
+        for _ in range(20):
+            time.sleep(1.5)
+            now = metric(server, "colonlight_frames_processed_total") - frames_before
+            if now == answered:
+                break
+            answered = now
+        assert 0 < answered < 30, answered
+        time.sleep(1.0)
+        assert metric(server, "colonlight_frames_processed_total") - frames_before == answered  # stalled
+        assert server_rss(server) - rss_before < 80 * 2**20
+        # once it has read nothing for the send timeout, the client loses its place (2 streams may open again)
+        time.sleep(SEND_TIMEOUT_S + 1.0)
+        with open_stream(server) as one, open_stream(server) as two:
+            for ws in (one, two):
+                ws.send(json.dumps({"type": "start"}))
+                assert recv_json(ws)["type"] == "ready"
+        assert server_rss(server) - rss_before < 80 * 2**20
+    finally:
+        sock.close()
+
+
+# ---------------------------------------------------------------------------------------------- the README's client
+
+
+def test_the_readme_example_client_works(server: ServiceServer, tmp_path: Path) -> None:
+    """The client printed in the README, run as a user would, on a clip made here."""
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    code = readme.split("```python\n# stream_client.py")[1].split("```")[0]
+    script = tmp_path / "stream_client.py"
+    script.write_text("# stream_client.py" + code)
+    clip = make_clip(tmp_path / "clip.mp4", n_frames=12, size=(160, 120))
+    env = {**os.environ, "COLONLIGHT_API_KEY": KEY}
+    run = subprocess.run(
+        [sys.executable, str(script), str(clip), ws_url(server)],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=90,
+    )
+    assert run.returncode == 0, run.stderr
+    lines = [json.loads(line) for line in run.stdout.splitlines()]
+    assert lines[0]["type"] == "ready" and lines[-1] == {"type": "end", "frames": 12, "errors": 0}
+    results = lines[1:-1]
+    assert [r["index"] for r in results] == list(range(12))
+    assert [r["time"] for r in results] == pytest.approx([i / 25 for i in range(12)])
+    written = sorted(tmp_path.glob("enhanced_*.jpg"))
+    assert len(written) == 12 and decode(written[-1].read_bytes()).shape == (120, 160, 3)
+
+
+def test_stopping_the_server_closes_open_streams(tmp_path: Path) -> None:
+    """SIGTERM with a stream open: the client is told (1012, service restart) and the server exits cleanly."""
+    srv = ServiceServer(tmp_path / "data", {"COLONLIGHT_METHOD": "gamma", "COLONLIGHT_WORKERS": "1"})
+    srv.start(timeout=START_TIMEOUT_S)
+    try:
+        with connect(ws_url(srv), proxy=None, max_size=None, compression=None, open_timeout=20) as ws:
+            ws.send(json.dumps({"type": "start", "gamma": 0.5, "format": "png"}))
+            assert recv_json(ws)["method"] == "gamma"
+            f = scene(1)[0]
+            ws.send(png(f))
+            assert recv_json(ws)["gamma"] == 0.5 and isinstance(ws.recv(30), bytes)
+            t0 = time.monotonic()
+            assert srv.proc is not None
+            srv.proc.terminate()
+            code, _, _ = closed_with(ws)
+            assert code == 1012 and time.monotonic() - t0 < 10
+        assert srv.proc.wait(20) in (0, -15)  # uvicorn re-raises SIGTERM after its graceful shutdown
+    finally:
+        srv.stop()
+    assert "Traceback" not in srv.log(), srv.log()
