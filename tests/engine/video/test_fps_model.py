@@ -1,7 +1,7 @@
 """The model of FFmpeg's ``fps`` filter on its own (``colonlight.fps``): pure timestamp arithmetic, tested without
 PyAV, numpy or a video file. The expected choices were recorded from the ffmpeg binary (``ffmpeg -i clip.mkv
--vf fps=18``) on the clips whose timestamps (Matroska, 1/1000 s) are listed here; tests/engine/video/test_video.py checks the
-same choice against the binary on real files of many kinds."""
+-vf fps=18``) on the clips whose timestamps (Matroska, 1/1000 s) are listed here; tests/engine/video/test_video.py
+checks the same choice against the binary on real files of many kinds."""
 
 from __future__ import annotations
 

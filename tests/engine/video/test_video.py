@@ -348,7 +348,8 @@ def test_truncated_mp4_is_reported_before_any_frame(clips: dict[str, Path], tmp_
 @needs_ffmpeg
 def test_corrupt_video_decodes_past_the_damage_like_ffmpeg(clips: dict[str, Path], tmp_path: Path) -> None:
     """A third of the file overwritten: the packets the decoder rejects are skipped, as ffmpeg skips them, and
-    every frame ffmpeg gets out of the file is ours (tests/engine/video/test_decode_damage.py compares the pixels too)."""
+    every frame ffmpeg gets out of the file is ours (tests/engine/video/test_decode_damage.py compares the pixels
+    too)."""
     bad = corrupted_copy(clips["cfr60.mp4"], tmp_path / "corrupt.mp4", start=0.3, length=0.3)
     report = DecodeReport()
     got = [read_index(f.image) for f in iter_video_frames(bad, None, report=report)]
