@@ -102,3 +102,14 @@ def test_the_same_gap_under_the_default_cap_streams_every_repeat(uncapped: Servi
     with av.open(io.BytesIO(video.content), mode="r") as c:
         shown = [read_index(f.to_ndarray(format="rgb24")) for f in c.decode(video=0)]
     assert shown == expected  # method none: the output frames are the source frames ffmpeg's fps=18 picks
+
+
+@pytest.mark.parametrize("value", ["0", "many"])
+def test_a_bad_cap_stops_the_server_at_start_in_one_line(tmp_path: Path, random_weights: Path, value: str) -> None:
+    """Before, the server started, every job failed and POST /v1/enhance answered 500 (a ValueError traceback)."""
+    srv = served(tmp_path / "data", random_weights, **{MAX_GAP_FRAMES_ENV: value})
+    with pytest.raises(RuntimeError, match="server exited with 2"):
+        srv.start(timeout=120)
+    lines = [line for line in srv.log().splitlines() if line.strip()]
+    assert any(MAX_GAP_FRAMES_ENV in line for line in lines), lines
+    assert not any("Traceback" in line for line in lines), lines
