@@ -89,6 +89,7 @@ class JobManager:
             format=o.format,
             quality=o.quality,
             content=o.content,
+            max_gap_frames=self.settings.max_gap_frames,
         )
 
     async def check_method(self, spec: MethodSpec) -> None:

@@ -11,7 +11,7 @@ from pydantic import Field, SecretStr, ValidationInfo, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from colonlight.errors import MethodOptionError
-from colonlight.limits import DEFAULT_FPS, DEFAULT_MAX_PIXELS, MAX_FPS, available_cores
+from colonlight.limits import DEFAULT_FPS, DEFAULT_MAX_GAP_FRAMES, DEFAULT_MAX_PIXELS, MAX_FPS, available_cores
 from colonlight.methods.options import option
 
 
@@ -69,6 +69,13 @@ class Settings(BaseSettings):
         description="Largest frame (width x height) accepted, read from the stream header at upload "
         "time; larger ones get 413 before any frame is decoded (COLONLIGHT_MAX_PIXELS, "
         "the same variable as the CLI's).",
+    )
+    max_gap_frames: int = Field(
+        DEFAULT_MAX_GAP_FRAMES,
+        ge=1,
+        description="Most copies of one frame a timestamp gap may add (the fps conversion repeats a frame until the "
+        "next is due); past it the job fails with the reason (COLONLIGHT_MAX_GAP_FRAMES, the same variable as "
+        "the CLI's).",
     )
     sync_max_seconds: float = Field(20.0, gt=0, description="Longest clip POST /v1/enhance accepts (seconds).")
     result_ttl_seconds: float = Field(
