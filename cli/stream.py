@@ -22,6 +22,8 @@ from colonlight import (
 )
 from colonlight.limits import DEFAULT_FPS
 from colonlight.live import (
+    BACKOFF_MAX_S,
+    BACKOFF_START_S,
     DEFAULT_BUFFER,
     DEFAULT_TIMEOUT_S,
     PIPE_FORMATS,
@@ -31,7 +33,6 @@ from colonlight.live import (
     parse_source,
     prepare_output_dir,
 )
-from colonlight.live.reader import BACKOFF_MAX_S, BACKOFF_START_S
 
 from . import options
 from .display import console, error_line

@@ -14,7 +14,7 @@ from .display import console
 from .options import invocation
 
 if TYPE_CHECKING:
-    from colonlight.train import EpochRecord
+    from colonlight import EpochRecord
 
 
 def _synthetic_clips(
@@ -52,8 +52,7 @@ def _synthetic_clips(
 def _clips(paths: list[Path]) -> list[Path]:
     """The clips under ``paths``; a synthetic clip folder trains on its lossless ``frames/`` (frame for frame
     beside ``clean/``, which the restoring objectives need), not on its H.264 ``clip.mp4``."""
-    from colonlight import discover_clips
-    from colonlight.discovery import synthetic_folder_of
+    from colonlight import discover_clips, synthetic_folder_of
 
     clips = []
     for job in discover_clips(paths, Path(".")):
@@ -203,12 +202,11 @@ def train_cmd(
     if method != "rnn":
         raise typer.BadParameter("choose rnn, zerodce or zerodce++", param_hint="--method")
     if init == "default":
-        from colonlight.checkpoint import DEFAULT_WEIGHTS
+        from colonlight import DEFAULT_WEIGHTS
 
         init = str(DEFAULT_WEIGHTS)
     # Imported here, not at the top: other commands (enhance above all) do without torch's training side and kornia.
-    from colonlight.errors import OptionError
-    from colonlight.train import TrainConfig, train
+    from colonlight import OptionError, TrainConfig, train_model
 
     try:
         cfg = TrainConfig(
@@ -248,7 +246,7 @@ def train_cmd(
                 f"epoch {rec.epoch}: train loss {rec.train_loss:.4f}, val loss {val_txt}, {rec.seconds:.0f} s"
             )
 
-        result = train(
+        result = train_model(
             train_clips,
             val_clips,
             output,
@@ -276,8 +274,7 @@ def _train_zerodce(
     extra: dict[str, object],
 ) -> None:
     """Zero-DCE / Zero-DCE++ on every 3rd frame of the clips, without the colour-constancy loss (as the paper did)."""
-    from colonlight.methods.zerodce_train import train_zerodce
-    from colonlight.sources import clip_frames
+    from colonlight import clip_frames, train_zerodce
 
     def frames():  # type: ignore[no-untyped-def]
         for clip in clips:

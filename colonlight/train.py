@@ -441,7 +441,7 @@ def objective_text(cfg: TrainConfig) -> str:
 ProgressFn = Callable[[int, int, int, float], None]
 
 
-def train(
+def train_model(
     train_clips: Sequence[Path],
     val_clips: Sequence[Path],
     run_dir: Path,

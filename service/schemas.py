@@ -7,8 +7,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
+from colonlight import available_methods
 from colonlight.limits import DEFAULT_FPS
-from colonlight.methods import available_methods
 
 METHODS = available_methods()
 JobState = Literal["queued", "running", "succeeded", "failed"]
