@@ -26,30 +26,8 @@ from pathlib import Path
 
 from .frames import IMAGE_SUFFIXES, is_image_folder
 from .jobs import ClipJob
-from .video import is_video
+from .video import VIDEO_SUFFIXES, is_video
 
-#: Suffixes taken as videos even before probing, so that a broken file with such a name is reported, not ignored.
-VIDEO_SUFFIXES = frozenset(
-    [
-        ".mp4",
-        ".m4v",
-        ".mov",
-        ".avi",
-        ".mkv",
-        ".mpg",
-        ".mpeg",
-        ".ts",
-        ".mts",
-        ".m2ts",
-        ".webm",
-        ".wmv",
-        ".flv",
-        ".3gp",
-        ".ogv",
-        ".mxf",
-        ".vob",
-    ]
-)
 _SIDE_SUFFIXES = frozenset([".json", ".txt", ".csv", ".md", ".yaml", ".yml", ".xml", ".log", ".ini"])
 #: The lock file every ``colonlight enhance`` output folder holds (see :mod:`colonlight.outdir`): a folder
 #: holding it is an output, never an input.
