@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from colonlight.errors import ColonlightError, OptionError
-from colonlight.limits import MAX_MODEL_SIZE, MIN_MODEL_SIZE
+from colonlight.limits import DEFAULT_MODEL_SIZE, MAX_MODEL_SIZE, MIN_MODEL_SIZE
 from colonlight.methods.options import option
 
 from . import options
@@ -29,8 +29,8 @@ def export(
         "--model-size",
         envvar="COLONLIGHT_MODEL_SIZE",
         help=f"Network input size in pixels the graph is fixed at ({MIN_MODEL_SIZE}..{MAX_MODEL_SIZE}), or 'auto' "
-        "(the default): the size the weights were trained at (their card; 48 for the shipped model), else 48. "
-        "'full' cannot be exported.",
+        "(the default): the size the weights were trained at (their card; 48 for the shipped model), else "
+        f"{DEFAULT_MODEL_SIZE}. 'full' cannot be exported.",
     ),
     debug: bool = options.Debug,
 ) -> None:

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from colonlight.limits import DEFAULT_FPS
+from colonlight.limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE
 
 from .display import console
 from .options import invocation
@@ -124,7 +124,12 @@ def train_cmd(
         "output flickers no more than the clean frames.",
     ),
     method: str = typer.Option("rnn", "--method", help="rnn (the paper's model) | zerodce | zerodce++ (baselines)."),
-    size: int = typer.Option(48, "--size", min=16, help="Training input size (match the inference default, 48)."),
+    size: int = typer.Option(
+        DEFAULT_MODEL_SIZE,
+        "--size",
+        min=16,
+        help=f"Training input size (match the inference default, {DEFAULT_MODEL_SIZE}).",
+    ),
     epochs: int = typer.Option(10, "--epochs", min=1),
     batch: int = typer.Option(4, "--batch", min=1),
     lr: float = typer.Option(5e-5, "--lr"),

@@ -38,6 +38,7 @@ _EXPORTS: dict[str, str] = {
     "CheckpointError": "errors",
     "ColonlightError": "errors",
     "DeviceError": "errors",
+    "encode_image": "frames",
     "InputError": "errors",
     "OptionError": "errors",
     "VIDEO_SUFFIXES": "discovery",
@@ -94,6 +95,7 @@ if TYPE_CHECKING:
     from .device import resolve_device
     from .discovery import VIDEO_SUFFIXES, PathProblem, discover, discover_clips, synthetic_folder_of
     from .errors import CheckpointError, ColonlightError, DeviceError, InputError, OptionError
+    from .frames import encode_image
     from .jobs import ClipJob, ClipOutcome, MethodSpec, estimate_frames, method_for, run_clip
     from .methods import FrameResult, Method, MethodStream, available_methods, create_method, is_available
     from .methods.rnn import parse_model_size
@@ -162,6 +164,7 @@ __all__ = [
     "default_workers",
     "discover",
     "discover_clips",
+    "encode_image",
     "enhance_clip",
     "enhance_frames",
     "estimate_frames",

@@ -45,6 +45,7 @@ def test_all_is_sorted_and_pinned() -> None:
         "default_workers",
         "discover",
         "discover_clips",
+        "encode_image",
         "enhance_clip",
         "enhance_frames",
         "estimate_frames",
