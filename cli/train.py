@@ -29,7 +29,7 @@ def _synthetic_clips(
     clean_seeds: float,
 ) -> list[Path]:
     """Render (or reuse) synthetic clips from the generator's training family; returns their frame folders."""
-    from colonlight.synth import make_dataset
+    from colonlight.synth import SYNTH_FRAMES, make_dataset
 
     dirs = make_dataset(
         run_dir / "data" / split,
@@ -46,18 +46,19 @@ def _synthetic_clips(
         occluder_fraction=occluders,
         clean_seeds_fraction=clean_seeds,
     )
-    return [d / "frames" for d in dirs]
+    return [d / SYNTH_FRAMES for d in dirs]
 
 
 def _clips(paths: list[Path]) -> list[Path]:
     """The clips under ``paths``; a synthetic clip folder trains on its lossless ``frames/`` (frame for frame
     beside ``clean/``, which the restoring objectives need), not on its H.264 ``clip.mp4``."""
     from colonlight import discover_clips, synthetic_folder_of
+    from colonlight.synth import SYNTH_FRAMES
 
     clips = []
     for job in discover_clips(paths, Path(".")):
         folder = synthetic_folder_of(job.source)
-        frames = folder / "frames" if folder is not None else None
+        frames = folder / SYNTH_FRAMES if folder is not None else None
         clips.append(frames if frames is not None and frames.is_dir() else job.source)
     return clips
 

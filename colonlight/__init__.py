@@ -22,6 +22,7 @@ __version__ = "0.1.0"
 _EXPORTS: dict[str, str] = {
     "atomic_path": "atomic",
     "write_json_atomic": "atomic",
+    "MANIFEST_FILE": "batch",
     "ManifestError": "batch",
     "default_workers": "batch",
     "run_batch": "batch",
@@ -88,7 +89,7 @@ _EXPORTS: dict[str, str] = {
 
 if TYPE_CHECKING:
     from .atomic import atomic_path, write_json_atomic
-    from .batch import ManifestError, default_workers, run_batch, warm_method
+    from .batch import MANIFEST_FILE, ManifestError, default_workers, run_batch, warm_method
     from .checkpoint import DEFAULT_WEIGHTS, LoadedWeights, load_weights, save_weights
     from .cluster import ClusterRunner
     from .curves import apply_gamma, apply_lut, gamma_lut
@@ -142,6 +143,7 @@ __all__ = [
     "GammaNet",
     "InputError",
     "LoadedWeights",
+    "MANIFEST_FILE",
     "ManifestError",
     "Method",
     "MethodSpec",

@@ -35,8 +35,10 @@ OUTPUT_MARKER = ".colonlight.lock"
 #: The file every synthetic clip folder holds (written last, see :mod:`colonlight.synth.writer`): such a folder
 #: is one clip, never searched for clips of its own (its ``clean/`` and ``depth/`` are ground truth, not clips).
 SYNTH_MARKER = "synth.json"
+#: A synthetic clip folder's recorded video and its frame folder (written by :mod:`colonlight.synth.writer`).
+SYNTH_VIDEO, SYNTH_FRAMES = "clip.mp4", "frames"
 #: What a synthetic clip folder holds as its clip, in order of preference: the recorded video, its frames.
-SYNTH_CLIP_SOURCES = ("clip.mp4", "frames")
+SYNTH_CLIP_SOURCES = (SYNTH_VIDEO, SYNTH_FRAMES)
 
 
 def is_synthetic_folder(path: Path) -> bool:
@@ -271,7 +273,9 @@ def discover_clips(inputs: Sequence[Path], out_root: Path, pattern: str | None =
 __all__ = [
     "OUTPUT_MARKER",
     "SYNTH_CLIP_SOURCES",
+    "SYNTH_FRAMES",
     "SYNTH_MARKER",
+    "SYNTH_VIDEO",
     "VIDEO_SUFFIXES",
     "ClipJob",
     "Discovery",

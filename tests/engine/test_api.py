@@ -23,6 +23,7 @@ def test_all_is_sorted_and_pinned() -> None:
         "GammaNet",
         "InputError",
         "LoadedWeights",
+        "MANIFEST_FILE",
         "ManifestError",
         "Method",
         "MethodSpec",
