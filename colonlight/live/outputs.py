@@ -24,7 +24,6 @@ from ..errors import ColonlightError, InputError
 from ..frames import encode_image
 from ..limits import DEFAULT_JPEG_QUALITY
 
-FRAMES_DIR = "frames"
 LOG_FILE = "gammas.jsonl"
 SUMMARY_FILE = "stream.json"
 PIPE_FORMATS = ("y4m", "mpegts")

@@ -23,9 +23,10 @@ from ..atomic import write_json_atomic
 from ..errors import ColonlightError, InputError, OptionError
 from ..limits import DEFAULT_FPS, DEFAULT_JPEG_QUALITY
 from ..methods.base import FrameResult, Method
+from ..pipeline import FRAMES_DIR
 from ..provenance import library_versions
 from .handoff import DROP_POLICIES, FrameHandoff, HandoffClosed
-from .outputs import FRAMES_DIR, LOG_FILE, SUMMARY_FILE, FrameFolder, FrameOutput, GammaLog, PipeClosed, open_pipe
+from .outputs import LOG_FILE, SUMMARY_FILE, FrameFolder, FrameOutput, GammaLog, PipeClosed, open_pipe
 from .reader import LiveFrame, StreamReader
 from .source import SourceSpec
 from .stats import LatencyStats, StreamSummary
