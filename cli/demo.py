@@ -7,7 +7,17 @@ from pathlib import Path
 
 import typer
 
-from colonlight import ClipOptions, MethodSpec, discover_clips, network_threads, run_batch, tune_for_clips
+from colonlight import (
+    GAMMAS_FILE,
+    MANIFEST_FILE,
+    VIDEO_FILE,
+    ClipOptions,
+    MethodSpec,
+    discover_clips,
+    network_threads,
+    run_batch,
+    tune_for_clips,
+)
 from colonlight.limits import DEFAULT_FPS
 
 from .display import BatchDisplay, console, error_line
@@ -30,7 +40,7 @@ def demo(
     """Render a synthetic colonoscopy clip, enhance it with the default model, and say where everything is."""
     import numpy as np
 
-    from colonlight.synth import SynthConfig, write_clip
+    from colonlight.synth import SYNTH_VIDEO, SynthConfig, write_clip
 
     clip_dir = output / "input"
     cfg = SynthConfig.sample(
@@ -42,7 +52,7 @@ def demo(
         fps=DEMO_FPS,
         undisturbed_seeds=True,
     )
-    video_path = clip_dir / "clip.mp4"
+    video_path = clip_dir / SYNTH_VIDEO
     if not video_path.is_file():
         console.print(f"rendering a synthetic clip ({frames} frames at {DEMO_FPS:g} fps) into {clip_dir} ...")
         write_clip(clip_dir, cfg, seed=DEMO_SEED, video=True, frames=False)
@@ -63,16 +73,16 @@ def demo(
         error_line(outcomes[0].error or "demo failed")
         raise typer.Exit(1)
     result = jobs[0].out_dir
-    gammas = [f["gamma"] for f in json.loads((result / "gammas.json").read_text())["frames"]]
+    gammas = [f["gamma"] for f in json.loads((result / GAMMAS_FILE).read_text())["frames"]]
     console.print(
         f"\n[bold]colonlight demo done[/]: {len(gammas)} frames extracted at {DEFAULT_FPS:g} fps from a "
         f"{DEMO_FPS:g} fps clip, "
         f"gamma {min(gammas):.2f}..{max(gammas):.2f}\n"
         f"  input clip      {video_path}\n"
         f"  enhanced frames {result / 'frames'}/\n"
-        f"  per-frame gamma {result / 'gammas.json'}\n"
-        f"  enhanced video  {result / 'enhanced.mp4'}\n"
-        f"  manifest        {enhanced / 'manifest.json'}"
+        f"  per-frame gamma {result / GAMMAS_FILE}\n"
+        f"  enhanced video  {result / VIDEO_FILE}\n"
+        f"  manifest        {enhanced / MANIFEST_FILE}"
     )
 
 

@@ -28,7 +28,13 @@ from colonlight import (
     run_batch,
     tune_for_clips,
 )
-from colonlight.limits import DEFAULT_FPS
+from colonlight.limits import (
+    DEFAULT_FPS,
+    DEFAULT_FRAME_FORMAT,
+    DEFAULT_JPEG_QUALITY,
+    MAX_JPEG_QUALITY,
+    MIN_JPEG_QUALITY,
+)
 
 from . import options
 from .display import BatchDisplay, console, error_line, problem_line, summary
@@ -89,8 +95,12 @@ def enhance(
     video: bool = typer.Option(
         False, "--video/--no-video", help="Also write enhanced.mp4 (H.264, yuv420p, faststart)."
     ),
-    fmt: str = typer.Option("png", "--format", "-f", envvar="COLONLIGHT_FORMAT", help="Frame image format: png | jpg."),
-    quality: int = typer.Option(95, "--quality", min=1, max=100, help="JPEG quality."),
+    fmt: str = typer.Option(
+        DEFAULT_FRAME_FORMAT, "--format", "-f", envvar="COLONLIGHT_FORMAT", help="Frame image format: png | jpg."
+    ),
+    quality: int = typer.Option(
+        DEFAULT_JPEG_QUALITY, "--quality", min=MIN_JPEG_QUALITY, max=MAX_JPEG_QUALITY, help="JPEG quality."
+    ),
     pattern: str | None = typer.Option(None, "--pattern", help="Glob on clip paths/names, e.g. '*.mp4' or 'site1/*'."),
     workers: int | None = typer.Option(
         None,

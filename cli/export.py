@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from colonlight.errors import ColonlightError, OptionError
-from colonlight.limits import MAX_MODEL_SIZE, MIN_MODEL_SIZE
+from colonlight.limits import DEFAULT_MODEL_SIZE, MAX_MODEL_SIZE, MIN_MODEL_SIZE
 from colonlight.methods.options import option
 
 from . import options
@@ -29,16 +29,14 @@ def export(
         "--model-size",
         envvar="COLONLIGHT_MODEL_SIZE",
         help=f"Network input size in pixels the graph is fixed at ({MIN_MODEL_SIZE}..{MAX_MODEL_SIZE}), or 'auto' "
-        "(the default): the size the weights were trained at (their card; 48 for the shipped model), else 48. "
-        "'full' cannot be exported.",
+        "(the default): the size the weights were trained at (their card; 48 for the shipped model), else "
+        f"{DEFAULT_MODEL_SIZE}. 'full' cannot be exported.",
     ),
     debug: bool = options.Debug,
 ) -> None:
     """Write the step graph (frame, h, c -> a, h_out, c_out) for ONNX Runtime hosts, checked against torch."""
     try:
-        from colonlight.checkpoint import load_weights
-        from colonlight.methods.rnn import parse_model_size
-        from colonlight.onnx_export import export_onnx, sidecar_path
+        from colonlight import export_onnx, load_weights, onnx_sidecar_path, parse_model_size
 
         try:
             checked = option("model_size").parse(model_size or "auto")  # the range enhance and the service take
@@ -64,7 +62,7 @@ def export(
     check = record["check"]["onnxruntime_vs_torch_max_abs_diff"]
     outputs = ", ".join(o["name"] for o in record["outputs"])
     console.print(f"wrote {output} (opset {record['onnx']['opset']}, input {size}x{size}, outputs {outputs})")
-    console.print(f"wrote {sidecar_path(output)}")
+    console.print(f"wrote {onnx_sidecar_path(output)}")
     if check is not None:
         console.print(f"checked against torch: max |difference| {check:.2g}")
 

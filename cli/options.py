@@ -11,11 +11,18 @@ from typing import Any
 import typer
 
 from colonlight.errors import MethodOptionError
-from colonlight.limits import DEFAULT_MAX_GAP_FRAMES, DEFAULT_MAX_PIXELS, MAX_FPS, MAX_GAP_FRAMES_ENV, MAX_PIXELS_ENV
+from colonlight.limits import (
+    DEFAULT_MAX_GAP_FRAMES,
+    DEFAULT_MAX_PIXELS,
+    DEFAULT_METHOD,
+    MAX_FPS,
+    MAX_GAP_FRAMES_ENV,
+    MAX_PIXELS_ENV,
+)
 from colonlight.methods.options import OPTIONS, methods_kwargs, option
 
 Method = typer.Option(
-    "rnn", "--method", "-m", envvar="COLONLIGHT_METHOD", help="Enhancement method (see `colonlight info`)."
+    DEFAULT_METHOD, "--method", "-m", envvar="COLONLIGHT_METHOD", help="Enhancement method (see `colonlight info`)."
 )
 #: Short flags of method options (the declaration names the long ones).
 _SHORT = {"weights": ("-w",)}

@@ -20,8 +20,10 @@ from colonlight import (
     network_threads,
     reuse_frame_memory,
 )
-from colonlight.limits import DEFAULT_FPS
+from colonlight.limits import DEFAULT_FPS, DEFAULT_JPEG_QUALITY, MAX_JPEG_QUALITY, MIN_JPEG_QUALITY
 from colonlight.live import (
+    BACKOFF_MAX_S,
+    BACKOFF_START_S,
     DEFAULT_BUFFER,
     DEFAULT_TIMEOUT_S,
     PIPE_FORMATS,
@@ -31,7 +33,6 @@ from colonlight.live import (
     parse_source,
     prepare_output_dir,
 )
-from colonlight.live.reader import BACKOFF_MAX_S, BACKOFF_START_S
 
 from . import options
 from .display import console, error_line
@@ -124,7 +125,9 @@ def stream(
         help="Frame image format: jpg (default: at 1080p a PNG costs ~20x the CPU of a JPEG, too much at "
         f"{DEFAULT_FPS:g} fps on 2 cores) | png.",
     ),
-    quality: int = typer.Option(95, "--quality", min=1, max=100, help="JPEG quality."),
+    quality: int = typer.Option(
+        DEFAULT_JPEG_QUALITY, "--quality", min=MIN_JPEG_QUALITY, max=MAX_JPEG_QUALITY, help="JPEG quality."
+    ),
     keep: int = typer.Option(0, "--keep", min=0, help="Keep only the newest N frames in OUTPUT/frames/ (0: all)."),
     realtime: bool = typer.Option(
         False,

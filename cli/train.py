@@ -8,13 +8,13 @@ from typing import TYPE_CHECKING
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from colonlight.limits import DEFAULT_FPS
+from colonlight.limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE
 
 from .display import console
 from .options import invocation
 
 if TYPE_CHECKING:
-    from colonlight.train import EpochRecord
+    from colonlight import EpochRecord
 
 
 def _synthetic_clips(
@@ -29,7 +29,7 @@ def _synthetic_clips(
     clean_seeds: float,
 ) -> list[Path]:
     """Render (or reuse) synthetic clips from the generator's training family; returns their frame folders."""
-    from colonlight.synth import make_dataset
+    from colonlight.synth import SYNTH_FRAMES, make_dataset
 
     dirs = make_dataset(
         run_dir / "data" / split,
@@ -46,19 +46,19 @@ def _synthetic_clips(
         occluder_fraction=occluders,
         clean_seeds_fraction=clean_seeds,
     )
-    return [d / "frames" for d in dirs]
+    return [d / SYNTH_FRAMES for d in dirs]
 
 
 def _clips(paths: list[Path]) -> list[Path]:
     """The clips under ``paths``; a synthetic clip folder trains on its lossless ``frames/`` (frame for frame
     beside ``clean/``, which the restoring objectives need), not on its H.264 ``clip.mp4``."""
-    from colonlight import discover_clips
-    from colonlight.discovery import synthetic_folder_of
+    from colonlight import discover_clips, synthetic_folder_of
+    from colonlight.synth import SYNTH_FRAMES
 
     clips = []
     for job in discover_clips(paths, Path(".")):
         folder = synthetic_folder_of(job.source)
-        frames = folder / "frames" if folder is not None else None
+        frames = folder / SYNTH_FRAMES if folder is not None else None
         clips.append(frames if frames is not None and frames.is_dir() else job.source)
     return clips
 
@@ -125,7 +125,12 @@ def train_cmd(
         "output flickers no more than the clean frames.",
     ),
     method: str = typer.Option("rnn", "--method", help="rnn (the paper's model) | zerodce | zerodce++ (baselines)."),
-    size: int = typer.Option(48, "--size", min=16, help="Training input size (match the inference default, 48)."),
+    size: int = typer.Option(
+        DEFAULT_MODEL_SIZE,
+        "--size",
+        min=16,
+        help=f"Training input size (match the inference default, {DEFAULT_MODEL_SIZE}).",
+    ),
     epochs: int = typer.Option(10, "--epochs", min=1),
     batch: int = typer.Option(4, "--batch", min=1),
     lr: float = typer.Option(5e-5, "--lr"),
@@ -203,12 +208,11 @@ def train_cmd(
     if method != "rnn":
         raise typer.BadParameter("choose rnn, zerodce or zerodce++", param_hint="--method")
     if init == "default":
-        from colonlight.checkpoint import DEFAULT_WEIGHTS
+        from colonlight import DEFAULT_WEIGHTS
 
         init = str(DEFAULT_WEIGHTS)
     # Imported here, not at the top: other commands (enhance above all) do without torch's training side and kornia.
-    from colonlight.errors import OptionError
-    from colonlight.train import TrainConfig, train
+    from colonlight import OptionError, TrainConfig, train_model
 
     try:
         cfg = TrainConfig(
@@ -248,7 +252,7 @@ def train_cmd(
                 f"epoch {rec.epoch}: train loss {rec.train_loss:.4f}, val loss {val_txt}, {rec.seconds:.0f} s"
             )
 
-        result = train(
+        result = train_model(
             train_clips,
             val_clips,
             output,
@@ -276,8 +280,7 @@ def _train_zerodce(
     extra: dict[str, object],
 ) -> None:
     """Zero-DCE / Zero-DCE++ on every 3rd frame of the clips, without the colour-constancy loss (as the paper did)."""
-    from colonlight.methods.zerodce_train import train_zerodce
-    from colonlight.sources import clip_frames
+    from colonlight import clip_frames, train_zerodce
 
     def frames():  # type: ignore[no-untyped-def]
         for clip in clips:

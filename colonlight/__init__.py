@@ -22,6 +22,7 @@ __version__ = "0.1.0"
 _EXPORTS: dict[str, str] = {
     "atomic_path": "atomic",
     "write_json_atomic": "atomic",
+    "MANIFEST_FILE": "batch",
     "ManifestError": "batch",
     "default_workers": "batch",
     "run_batch": "batch",
@@ -38,12 +39,14 @@ _EXPORTS: dict[str, str] = {
     "CheckpointError": "errors",
     "ColonlightError": "errors",
     "DeviceError": "errors",
+    "encode_image": "frames",
     "InputError": "errors",
     "OptionError": "errors",
     "VIDEO_SUFFIXES": "discovery",
     "PathProblem": "discovery",
     "discover": "discovery",
     "discover_clips": "discovery",
+    "synthetic_folder_of": "discovery",
     "ClipJob": "jobs",
     "ClipOutcome": "jobs",
     "MethodSpec": "jobs",
@@ -56,9 +59,13 @@ _EXPORTS: dict[str, str] = {
     "available_methods": "methods",
     "create_method": "methods",
     "is_available": "methods",
+    "parse_model_size": "methods.rnn",
+    "train_zerodce": "methods.zerodce_train",
     "OutputError": "outdir",
     "output_lock": "outdir",
     "GammaNet": "model",
+    "export_onnx": "onnx_export",
+    "onnx_sidecar_path": "onnx_export",
     "GAMMAS_FILE": "pipeline",
     "VIDEO_FILE": "pipeline",
     "ClipOptions": "pipeline",
@@ -67,7 +74,12 @@ _EXPORTS: dict[str, str] = {
     "iter_enhanced": "pipeline",
     "library_versions": "provenance",
     "read_camera": "slam_layout",
+    "clip_frames": "sources",
     "enhance_frames": "streaming",
+    "EpochRecord": "train",
+    "TrainConfig": "train",
+    "TrainResult": "train",
+    "train_model": "train",
     "network_threads": "tuning",
     "reuse_frame_memory": "tuning",
     "tune_for_clips": "tuning",
@@ -77,21 +89,27 @@ _EXPORTS: dict[str, str] = {
 
 if TYPE_CHECKING:
     from .atomic import atomic_path, write_json_atomic
-    from .batch import ManifestError, default_workers, run_batch, warm_method
+    from .batch import MANIFEST_FILE, ManifestError, default_workers, run_batch, warm_method
     from .checkpoint import DEFAULT_WEIGHTS, LoadedWeights, load_weights, save_weights
     from .cluster import ClusterRunner
     from .curves import apply_gamma, apply_lut, gamma_lut
     from .device import resolve_device
-    from .discovery import VIDEO_SUFFIXES, PathProblem, discover, discover_clips
+    from .discovery import VIDEO_SUFFIXES, PathProblem, discover, discover_clips, synthetic_folder_of
     from .errors import CheckpointError, ColonlightError, DeviceError, InputError, OptionError
+    from .frames import encode_image
     from .jobs import ClipJob, ClipOutcome, MethodSpec, estimate_frames, method_for, run_clip
     from .methods import FrameResult, Method, MethodStream, available_methods, create_method, is_available
+    from .methods.rnn import parse_model_size
+    from .methods.zerodce_train import train_zerodce
     from .model import GammaNet
+    from .onnx_export import export_onnx, onnx_sidecar_path
     from .outdir import OutputError, output_lock
     from .pipeline import GAMMAS_FILE, VIDEO_FILE, ClipOptions, ClipResult, enhance_clip, iter_enhanced
     from .provenance import library_versions
     from .slam_layout import read_camera
+    from .sources import clip_frames
     from .streaming import enhance_frames
+    from .train import EpochRecord, TrainConfig, TrainResult, train_model
     from .tuning import network_threads, reuse_frame_memory, tune_for_clips
     from .video import VideoInfo, probe_video
 
@@ -119,11 +137,13 @@ __all__ = [
     "ColonlightError",
     "DEFAULT_WEIGHTS",
     "DeviceError",
+    "EpochRecord",
     "FrameResult",
     "GAMMAS_FILE",
     "GammaNet",
     "InputError",
     "LoadedWeights",
+    "MANIFEST_FILE",
     "ManifestError",
     "Method",
     "MethodSpec",
@@ -131,6 +151,8 @@ __all__ = [
     "OptionError",
     "OutputError",
     "PathProblem",
+    "TrainConfig",
+    "TrainResult",
     "VIDEO_FILE",
     "VIDEO_SUFFIXES",
     "VideoInfo",
@@ -139,13 +161,16 @@ __all__ = [
     "apply_lut",
     "atomic_path",
     "available_methods",
+    "clip_frames",
     "create_method",
     "default_workers",
     "discover",
     "discover_clips",
+    "encode_image",
     "enhance_clip",
     "enhance_frames",
     "estimate_frames",
+    "export_onnx",
     "gamma_lut",
     "is_available",
     "iter_enhanced",
@@ -153,7 +178,9 @@ __all__ = [
     "load_weights",
     "method_for",
     "network_threads",
+    "onnx_sidecar_path",
     "output_lock",
+    "parse_model_size",
     "probe_video",
     "read_camera",
     "resolve_device",
@@ -161,6 +188,9 @@ __all__ = [
     "run_batch",
     "run_clip",
     "save_weights",
+    "synthetic_folder_of",
+    "train_model",
+    "train_zerodce",
     "tune_for_clips",
     "warm_method",
     "write_json_atomic",

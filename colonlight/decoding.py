@@ -37,7 +37,9 @@ from .timestamps import FfmpegTimestamps
 
 log = logging.getLogger(__name__)
 
-#: Suffixes that usually name videos. Advisory only (e.g. to report a misnamed file): detection is by content.
+#: Suffixes that name videos (raw H.264 streams too: ``colonlight enhance file.h264`` decodes one). A batch takes a
+#: file with one as a clip before probing, so that a broken one is reported, not ignored; a file with any other
+#: suffix is a clip only if its content decodes (:func:`is_video`).
 VIDEO_SUFFIXES = frozenset(
     [
         ".mp4",

@@ -26,30 +26,8 @@ from pathlib import Path
 
 from .frames import IMAGE_SUFFIXES, is_image_folder
 from .jobs import ClipJob
-from .video import is_video
+from .video import VIDEO_SUFFIXES, is_video
 
-#: Suffixes taken as videos even before probing, so that a broken file with such a name is reported, not ignored.
-VIDEO_SUFFIXES = frozenset(
-    [
-        ".mp4",
-        ".m4v",
-        ".mov",
-        ".avi",
-        ".mkv",
-        ".mpg",
-        ".mpeg",
-        ".ts",
-        ".mts",
-        ".m2ts",
-        ".webm",
-        ".wmv",
-        ".flv",
-        ".3gp",
-        ".ogv",
-        ".mxf",
-        ".vob",
-    ]
-)
 _SIDE_SUFFIXES = frozenset([".json", ".txt", ".csv", ".md", ".yaml", ".yml", ".xml", ".log", ".ini"])
 #: The lock file every ``colonlight enhance`` output folder holds (see :mod:`colonlight.outdir`): a folder
 #: holding it is an output, never an input.
@@ -57,8 +35,10 @@ OUTPUT_MARKER = ".colonlight.lock"
 #: The file every synthetic clip folder holds (written last, see :mod:`colonlight.synth.writer`): such a folder
 #: is one clip, never searched for clips of its own (its ``clean/`` and ``depth/`` are ground truth, not clips).
 SYNTH_MARKER = "synth.json"
+#: A synthetic clip folder's recorded video and its frame folder (written by :mod:`colonlight.synth.writer`).
+SYNTH_VIDEO, SYNTH_FRAMES = "clip.mp4", "frames"
 #: What a synthetic clip folder holds as its clip, in order of preference: the recorded video, its frames.
-SYNTH_CLIP_SOURCES = ("clip.mp4", "frames")
+SYNTH_CLIP_SOURCES = (SYNTH_VIDEO, SYNTH_FRAMES)
 
 
 def is_synthetic_folder(path: Path) -> bool:
@@ -293,7 +273,9 @@ def discover_clips(inputs: Sequence[Path], out_root: Path, pattern: str | None =
 __all__ = [
     "OUTPUT_MARKER",
     "SYNTH_CLIP_SOURCES",
+    "SYNTH_FRAMES",
     "SYNTH_MARKER",
+    "SYNTH_VIDEO",
     "VIDEO_SUFFIXES",
     "ClipJob",
     "Discovery",

@@ -22,7 +22,7 @@ import numpy as np
 
 from .atomic import write_bytes_atomic
 from .errors import FrameTooLargeError, InputError
-from .limits import DEFAULT_FPS, max_pixels_setting
+from .limits import DEFAULT_FPS, DEFAULT_JPEG_QUALITY, max_pixels_setting
 from .video import DecodedFrame, is_video
 
 IMAGE_SUFFIXES: frozenset[str] = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"})
@@ -163,7 +163,9 @@ def iter_image_folder(
         yield DecodedFrame(image=img, index=i, source_index=i, time_s=t, source_time_s=t)
 
 
-def encode_image(rgb: np.ndarray, fmt: str = "png", quality: int = 95, png_compression: int = 1) -> bytes:
+def encode_image(
+    rgb: np.ndarray, fmt: str = "png", quality: int = DEFAULT_JPEG_QUALITY, png_compression: int = 1
+) -> bytes:
     """Encode an ``(H, W, 3)`` uint8 RGB frame as PNG or JPEG bytes.
 
     PNG compression 1 by default (zlib's fastest real level): frames are written at video rate; higher levels
@@ -184,6 +186,6 @@ def encode_image(rgb: np.ndarray, fmt: str = "png", quality: int = 95, png_compr
     return buf.tobytes()
 
 
-def write_image_atomic(path: Path, rgb: np.ndarray, fmt: str = "png", quality: int = 95) -> None:
+def write_image_atomic(path: Path, rgb: np.ndarray, fmt: str = "png", quality: int = DEFAULT_JPEG_QUALITY) -> None:
     """Encode ``rgb`` and write it to ``path`` atomically (a reader never sees a partial image)."""
     write_bytes_atomic(Path(path), encode_image(rgb, fmt=fmt, quality=quality))

@@ -20,6 +20,7 @@ from typing import Any
 
 from .errors import ColonlightError
 from .frames import list_image_frames
+from .limits import DEFAULT_METHOD
 from .methods import Method, create_method
 from .pipeline import ClipOptions, complete_record, discard_partial_outputs, enhance_clip
 from .video import probe_video
@@ -60,7 +61,7 @@ class ClipOutcome:
 class MethodSpec:
     """A method by name and options: cheap to send to worker processes, which build (and cache) the method."""
 
-    name: str = "rnn"
+    name: str = DEFAULT_METHOD
     options: tuple[tuple[str, Any], ...] = ()
 
     @staticmethod

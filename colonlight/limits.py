@@ -28,9 +28,20 @@ MAX_GAP_FRAMES_ENV = "COLONLIGHT_MAX_GAP_FRAMES"
 #: The extraction rate when none is given (CLI, service, evaluation, training, a frame folder's assumed rate):
 #: the authors' ``ffmpeg -vf fps=18`` extraction, which their model was trained on.
 DEFAULT_FPS = 18.0
+#: The method when none is given (``--method``, the service's ``COLONLIGHT_METHOD``, the Python API): the paper's model.
+DEFAULT_METHOD = "rnn"
+#: The image format of a clip's enhanced frames when none is given (``enhance --format``, a job's ``format``); a live
+#: stream's default differs (``jpg``: at 1080p a PNG costs too much CPU for real time).
+DEFAULT_FRAME_FORMAT = "png"
+#: JPEG quality of enhanced frames when none is given (``--quality``, a request's ``quality``), and its range.
+DEFAULT_JPEG_QUALITY = 95
+MIN_JPEG_QUALITY, MAX_JPEG_QUALITY = 1, 100
 #: The rnn method's network input side in pixels (``--model-size``, a request's ``model_size``): below 8 the
 #: encoder's strides leave nothing; above 1024 a step costs seconds on a CPU while ``full`` covers that need.
 MIN_MODEL_SIZE, MAX_MODEL_SIZE = 8, 1024
+#: The rnn method's input side when neither the option nor the weights' card gives one, and the size ``colonlight
+#: train`` trains at. Chosen by measurement (README, "Choosing the network input size").
+DEFAULT_MODEL_SIZE = 48
 #: Largest exponent of the ``gamma`` method (``out = in ** gamma``): at 10 all but the brightest pixels are black
 #: already, so a larger value is a typo.
 MAX_GAMMA = 10.0

@@ -33,7 +33,7 @@ EXPORT_TOLERANCE = 1e-5
 _CHECK_FRAMES = 8
 
 
-def sidecar_path(onnx_path: Path) -> Path:
+def onnx_sidecar_path(onnx_path: Path) -> Path:
     """The sidecar beside ``model.onnx``: ``model.onnx.json`` (never ``model.json``, a weights card's name)."""
     onnx_path = Path(onnx_path)
     return onnx_path.with_name(onnx_path.name + ".json")
@@ -220,13 +220,13 @@ def export_onnx(weights: LoadedWeights, out: Path, size: int, check: bool = True
     record = sidecar_record(weights, sig, described, out.name, hashlib.sha256(data).hexdigest(), opset, worst)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_bytes_atomic(out, data)
-    write_json_atomic(sidecar_path(out), record)
+    write_json_atomic(onnx_sidecar_path(out), record)
     return record
 
 
 def read_sidecar(onnx_path: Path) -> dict[str, Any]:
     """The sidecar of an exported graph (``ExportError`` naming the file if absent or unreadable)."""
-    path = sidecar_path(onnx_path)
+    path = onnx_sidecar_path(onnx_path)
     try:
         record: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:

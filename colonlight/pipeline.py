@@ -38,7 +38,16 @@ from .atomic import publish, remove_stale_temporaries, write_json_atomic, write_
 from .content import DEFAULT_CONTENT, content_stream, parse_content_mode
 from .errors import InputError, OptionError
 from .frames import encode_image
-from .limits import DEFAULT_FPS, MAX_FPS, max_gap_frames_setting, max_pixels_setting
+from .limits import (
+    DEFAULT_FPS,
+    DEFAULT_FRAME_FORMAT,
+    DEFAULT_JPEG_QUALITY,
+    MAX_FPS,
+    MAX_JPEG_QUALITY,
+    MIN_JPEG_QUALITY,
+    max_gap_frames_setting,
+    max_pixels_setting,
+)
 from .methods.base import FrameResult, Method
 from .provenance import library_versions
 from .slam_layout import CAMERA_FILES, TIMES_FILE, TUM_RGB_FILE, camera_setting, clip_camera, write_slam_layout
@@ -97,8 +106,8 @@ class ClipOptions:
     fps: float | None = DEFAULT_FPS  # None or 0: keep every source frame
     frames: bool = True
     video: bool = False
-    format: str = "png"  # png | jpg
-    quality: int = 95  # JPEG quality
+    format: str = DEFAULT_FRAME_FORMAT  # png | jpg
+    quality: int = DEFAULT_JPEG_QUALITY
     folder_fps: float = DEFAULT_FPS  # the rate assumed for a folder of frames
     camera: tuple[str, str] | None = None  # (file name, text) of a DSO/COLMAP camera file to copy (slam_layout)
     #: Largest frame (width x height) decoded; larger clips fail from their header. Default: limits.max_pixels_setting()
@@ -112,8 +121,8 @@ class ClipOptions:
         object.__setattr__(self, "content", parse_content_mode(self.content))
         if self.format not in ("png", "jpg"):
             raise OptionError(f"format must be png or jpg, got {self.format!r}")
-        if not 1 <= self.quality <= 100:
-            raise OptionError(f"quality must be within 1..100, got {self.quality}")
+        if not MIN_JPEG_QUALITY <= self.quality <= MAX_JPEG_QUALITY:
+            raise OptionError(f"quality must be within {MIN_JPEG_QUALITY}..{MAX_JPEG_QUALITY}, got {self.quality}")
         if self.fps is not None and not 0 <= self.fps <= MAX_FPS:
             raise OptionError(f"fps must be within 0..{MAX_FPS:g}, got {self.fps:g}")
         if self.max_pixels < 1:

@@ -13,10 +13,13 @@ from typing import Any
 
 import numpy as np
 
+from .limits import DEFAULT_METHOD
 from .methods import FrameResult, Method, create_method
 
 
-def enhance_frames(frames: Iterable[np.ndarray], method: Method | str = "rnn", **options: Any) -> Iterator[FrameResult]:
+def enhance_frames(
+    frames: Iterable[np.ndarray], method: Method | str = DEFAULT_METHOD, **options: Any
+) -> Iterator[FrameResult]:
     """Yield one :class:`FrameResult` per frame of ``frames`` (``(H, W, 3)`` uint8 RGB, in clip order), in order.
 
     ``method``: a :class:`Method` (built once, reused across clips), or a method's name, built here with

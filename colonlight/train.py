@@ -34,8 +34,7 @@ from .atomic import atomic_path, write_json_atomic
 from .checkpoint import load_weights, save_weights
 from .correction import apply_curve, apply_gain_gamma, curve_slopes_from_raw, gain_gamma_from_raw
 from .errors import InputError, OptionError
-from .limits import DEFAULT_FPS
-from .methods.rnn import DEFAULT_MODEL_SIZE
+from .limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE
 from .model import HEAD_OUTPUTS, GammaNet, correct, parameter_count
 from .sources import clip_frames
 
@@ -441,7 +440,7 @@ def objective_text(cfg: TrainConfig) -> str:
 ProgressFn = Callable[[int, int, int, float], None]
 
 
-def train(
+def train_model(
     train_clips: Sequence[Path],
     val_clips: Sequence[Path],
     run_dir: Path,

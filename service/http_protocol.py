@@ -21,6 +21,8 @@ from typing import Any
 import h11
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
+from .settings import DEFAULT_HEADER_TIMEOUT_S
+
 #: the JSON error body of a 408 sent for headers that came too slowly (same shape as every service error)
 _CODE = "header_timeout"
 
@@ -44,7 +46,7 @@ def _response_408(seconds: float) -> bytes:
 class HeaderDeadlineProtocol(H11Protocol):
     """:class:`H11Protocol` whose request headers must arrive within :attr:`header_timeout` seconds."""
 
-    header_timeout: float = 10.0
+    header_timeout: float = DEFAULT_HEADER_TIMEOUT_S
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)

@@ -16,7 +16,15 @@ from pydantic_core import PydanticCustomError
 
 from colonlight import MethodSpec
 from colonlight.errors import MethodOptionError
-from colonlight.limits import DEFAULT_FPS, MAX_FPS
+from colonlight.limits import (
+    DEFAULT_FPS,
+    DEFAULT_FRAME_FORMAT,
+    DEFAULT_JPEG_QUALITY,
+    DEFAULT_METHOD,
+    MAX_FPS,
+    MAX_JPEG_QUALITY,
+    MIN_JPEG_QUALITY,
+)
 from colonlight.methods.options import method_kwargs, option, request_options
 
 from .errors import ApiError
@@ -53,9 +61,9 @@ class _ClipOptions(BaseModel):
         le=int(MAX_FPS),
         description=f"Extraction rate; 0 keeps every frame (default: the server's, {DEFAULT_FPS:g}).",
     )
-    method: str | None = Field(None, description="Enhancement method (default: the server's, rnn).")
-    format: Literal["png", "jpg"] = Field("png", description="Format of the enhanced frames (the zip).")
-    quality: int = Field(95, ge=1, le=100, description="JPEG quality.")
+    method: str | None = Field(None, description=f"Enhancement method (default: the server's, {DEFAULT_METHOD}).")
+    format: Literal["png", "jpg"] = Field(DEFAULT_FRAME_FORMAT, description="Format of the enhanced frames (the zip).")
+    quality: int = Field(DEFAULT_JPEG_QUALITY, ge=MIN_JPEG_QUALITY, le=MAX_JPEG_QUALITY, description="JPEG quality.")
     frames: bool = Field(True, description="Also write the enhanced frames (downloadable as a zip).")
     content: Literal["auto", "full"] = Field(
         "auto",

@@ -7,8 +7,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
-from colonlight.limits import DEFAULT_FPS
-from colonlight.methods import available_methods
+from colonlight import available_methods
+from colonlight.limits import DEFAULT_FPS, DEFAULT_FRAME_FORMAT, DEFAULT_JPEG_QUALITY, DEFAULT_METHOD
 
 METHODS = available_methods()
 JobState = Literal["queued", "running", "succeeded", "failed"]
@@ -47,7 +47,13 @@ class JobStatus(BaseModel):
                     "id": "q0Xq3b9bYJgP4yL2m9Vb0w",
                     "status": "running",
                     "filename": "p7.mp4",
-                    "options": {"fps": DEFAULT_FPS, "method": "rnn", "format": "png", "quality": 95, "frames": True},
+                    "options": {
+                        "fps": DEFAULT_FPS,
+                        "method": DEFAULT_METHOD,
+                        "format": DEFAULT_FRAME_FORMAT,
+                        "quality": DEFAULT_JPEG_QUALITY,
+                        "frames": True,
+                    },
                     "frames_done": 12,
                     "frames_total": 36,
                     "progress": 0.333,

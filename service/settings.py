@@ -11,8 +11,18 @@ from pydantic import Field, SecretStr, ValidationInfo, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from colonlight.errors import MethodOptionError
-from colonlight.limits import DEFAULT_FPS, DEFAULT_MAX_GAP_FRAMES, DEFAULT_MAX_PIXELS, MAX_FPS, available_cores
+from colonlight.limits import (
+    DEFAULT_FPS,
+    DEFAULT_MAX_GAP_FRAMES,
+    DEFAULT_MAX_PIXELS,
+    DEFAULT_METHOD,
+    MAX_FPS,
+    available_cores,
+)
 from colonlight.methods.options import option
+
+#: Seconds a connection may take to deliver a request's headers (``COLONLIGHT_HEADER_TIMEOUT_SECONDS``).
+DEFAULT_HEADER_TIMEOUT_S = 10.0
 
 
 def _default_workers() -> int:
@@ -45,7 +55,7 @@ class Settings(BaseSettings):
         "a job is admitted only once its upload is complete.",
     )
     header_timeout_seconds: float = Field(
-        10.0,
+        DEFAULT_HEADER_TIMEOUT_S,
         gt=0,
         description="A request whose headers are not complete this long after the connection opened (or after the "
         "previous response on it) gets 408 and is closed: a client sending its headers slowly (slowloris) "
@@ -85,7 +95,7 @@ class Settings(BaseSettings):
     retry_after_seconds: int = Field(10, ge=1, description="Retry-After sent with 503 when the queue is full.")
     max_attempts: int = Field(2, ge=1, description="Starts of a job (restarts included) before it is marked failed.")
     api_key: SecretStr | None = Field(None, description="When set, every route but /healthz and /readyz requires it.")
-    method: str = Field("rnn", description="Default enhancement method (loaded at start-up).")
+    method: str = Field(DEFAULT_METHOD, description="Default enhancement method (loaded at start-up).")
     weights: Path | None = Field(None, description="Checkpoint for rnn (default: the shipped model).")
     model_size: str | None = Field(
         None, description="Default of a request's model_size: " + option("model_size").description

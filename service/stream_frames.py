@@ -10,6 +10,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from colonlight import encode_image
 from colonlight.limits import DEFAULT_MAX_PIXELS, MAX_PIXELS_ENV, max_pixels_setting
 
 ImageFormat = Literal["jpeg", "png"]
@@ -96,12 +97,5 @@ def decode_frame(data: bytes, limit: int) -> np.ndarray:
 
 
 def encode_frame(rgb: np.ndarray, fmt: ImageFormat, quality: int) -> bytes:
-    """JPEG (at ``quality``) or PNG (fast, level 1) bytes of an RGB frame."""
-    bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
-    if fmt == "jpeg":
-        ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, quality])
-    else:
-        ok, buf = cv2.imencode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, 1])
-    if not ok:
-        raise RuntimeError(f"OpenCV could not encode a {rgb.shape[1]}x{rgb.shape[0]} frame as {fmt}")
-    return buf.tobytes()
+    """JPEG (at ``quality``) or PNG bytes of an RGB frame, encoded as the engine encodes a clip's frames."""
+    return encode_image(rgb, "jpg" if fmt == "jpeg" else "png", quality)

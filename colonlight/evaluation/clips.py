@@ -23,7 +23,14 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..discovery import SYNTH_MARKER, discover_clips, is_synthetic_folder, synthetic_folder_of
+from ..discovery import (
+    SYNTH_FRAMES,
+    SYNTH_MARKER,
+    SYNTH_VIDEO,
+    discover_clips,
+    is_synthetic_folder,
+    synthetic_folder_of,
+)
 from ..errors import InputError
 from ..frames import list_image_frames, read_image
 from ..limits import DEFAULT_FPS
@@ -173,10 +180,10 @@ def load_synthetic_clip(
         fps = float(cfg.get("fps", DEFAULT_FPS))
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InputError(f"{folder}: incomplete synthetic clip ({exc})") from exc
-    if (folder / "frames").is_dir():
-        images = [read_image(p) for p in list_image_frames(folder / "frames")[:max_frames]]
+    if (folder / SYNTH_FRAMES).is_dir():
+        images = [read_image(p) for p in list_image_frames(folder / SYNTH_FRAMES)[:max_frames]]
     else:  # written with frames=False: every frame of the video (it was encoded at the clip's own rate)
-        images = [f.image for f in clip_frames(folder / "clip.mp4", fps=None)][:max_frames]
+        images = [f.image for f in clip_frames(folder / SYNTH_VIDEO, fps=None)][:max_frames]
     depth_paths = list_image_frames(folder / "depth")[: len(images)]
     poses = read_tum(folder / "poses.txt")[: len(images)]
     if not (len(images) == len(depth_paths) == len(poses)) or len(images) < 2:

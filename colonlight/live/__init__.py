@@ -10,11 +10,14 @@ MPEG-TS pipes), ``stats`` (latency in constant memory), ``runner`` (one stream, 
 from __future__ import annotations
 
 from .outputs import PIPE_FORMATS, PipeClosed
+from .reader import BACKOFF_MAX_S, BACKOFF_START_S
 from .runner import DEFAULT_BUFFER, DEFAULT_TIMEOUT_S, LiveStream, OutputPlan, StreamOptions, prepare_output_dir
 from .source import SourceSpec, list_devices, parse_source, probe_device
 from .stats import StreamSummary
 
 __all__ = [
+    "BACKOFF_MAX_S",
+    "BACKOFF_START_S",
     "DEFAULT_BUFFER",
     "DEFAULT_TIMEOUT_S",
     "PIPE_FORMATS",

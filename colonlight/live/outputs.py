@@ -22,8 +22,8 @@ import numpy as np
 from ..atomic import publish, remove_stale_temporaries, write_temporary
 from ..errors import ColonlightError, InputError
 from ..frames import encode_image
+from ..limits import DEFAULT_JPEG_QUALITY
 
-FRAMES_DIR = "frames"
 LOG_FILE = "gammas.jsonl"
 SUMMARY_FILE = "stream.json"
 PIPE_FORMATS = ("y4m", "mpegts")
@@ -159,7 +159,7 @@ class FrameFolder:
     ``keep`` > 0 keeps only the newest ``keep`` frames (a long procedure does not fill the disk); 0 keeps all.
     """
 
-    def __init__(self, folder: Path, fmt: str = "jpg", quality: int = 95, keep: int = 0) -> None:
+    def __init__(self, folder: Path, fmt: str = "jpg", quality: int = DEFAULT_JPEG_QUALITY, keep: int = 0) -> None:
         self.folder = Path(folder)
         self.fmt, self.quality, self.keep = fmt, quality, keep
         self.folder.mkdir(parents=True, exist_ok=True)

@@ -21,11 +21,12 @@ from typing import Any, BinaryIO
 from .. import __version__
 from ..atomic import write_json_atomic
 from ..errors import ColonlightError, InputError, OptionError
-from ..limits import DEFAULT_FPS
+from ..limits import DEFAULT_FPS, DEFAULT_JPEG_QUALITY
 from ..methods.base import FrameResult, Method
+from ..pipeline import FRAMES_DIR
 from ..provenance import library_versions
 from .handoff import DROP_POLICIES, FrameHandoff, HandoffClosed
-from .outputs import FRAMES_DIR, LOG_FILE, SUMMARY_FILE, FrameFolder, FrameOutput, GammaLog, PipeClosed, open_pipe
+from .outputs import LOG_FILE, SUMMARY_FILE, FrameFolder, FrameOutput, GammaLog, PipeClosed, open_pipe
 from .reader import LiveFrame, StreamReader
 from .source import SourceSpec
 from .stats import LatencyStats, StreamSummary
@@ -71,7 +72,7 @@ class OutputPlan:
     out_dir: Path | None = None  # OUT/gammas.jsonl, OUT/stream.json and (with frames) OUT/frames/
     frames: bool = True
     format: str = "jpg"
-    quality: int = 95
+    quality: int = DEFAULT_JPEG_QUALITY
     keep: int = 0  # newest frames kept in OUT/frames (0: all)
     pipe: str | None = None  # y4m | mpegts
     pipe_file: BinaryIO | None = None  # where the pipe goes (the CLI: standard output)

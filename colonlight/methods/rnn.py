@@ -21,13 +21,11 @@ from ..correction import CURVE_KNOTS, curve_values, gain_gamma_values
 from ..curves import apply_gamma, apply_lut, curve_lut, gain_gamma_lut
 from ..device import resolve_device
 from ..errors import OptionError
-from ..limits import MAX_MODEL_SIZE, MIN_MODEL_SIZE
+from ..limits import DEFAULT_MODEL_SIZE, MAX_MODEL_SIZE, MIN_MODEL_SIZE
 from ..model import State
 from .base import FrameResult, Method, MethodStream, check_frame
 from .rnn_onnx import make_step
 
-#: Network input side in pixels. Chosen by measurement (README, "Choosing the network input size").
-DEFAULT_MODEL_SIZE = 48
 #: The applied gamma is kept inside this range; a value outside it is clamped and the clamp recorded.
 GAMMA_MIN, GAMMA_MAX = 0.125, 4.0
 #: The gain of the gain-gamma head is kept inside this range (its tanh bound is about 0.3 .. 3.3).

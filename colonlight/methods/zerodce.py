@@ -25,6 +25,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from ..checkpoint import WEIGHTS_DIR
 from ..device import resolve_device
 from ..errors import CheckpointError, OptionError
 from .base import FrameResult, Method, MethodStream, check_frame
@@ -49,7 +50,6 @@ from .zerodce_net import (
 )
 from .zerodce_train import ZeroDceTrainResult, train_zerodce
 
-WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "weights"
 DEFAULT_WEIGHTS = {
     "zerodce": WEIGHTS_DIR / "zerodce.safetensors",
     "zerodce++": WEIGHTS_DIR / "zerodce++.safetensors",

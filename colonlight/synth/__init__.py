@@ -15,6 +15,7 @@ auto-exposure, gain jumps, contrast power curves) beside clean frames at a fixed
 
 from __future__ import annotations
 
+from ..discovery import SYNTH_FRAMES, SYNTH_VIDEO
 from .clip import SynthFrame, build_scene, generate_clip, render_frame
 from .config import PARAM_SPECS, SynthConfig
 from .overlay import BORDERS, OverlaySpec
@@ -25,6 +26,8 @@ __all__ = [
     "GENERATOR_VERSION",
     "OverlaySpec",
     "PARAM_SPECS",
+    "SYNTH_FRAMES",
+    "SYNTH_VIDEO",
     "SynthConfig",
     "SynthFrame",
     "build_scene",

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from ..atomic import atomic_path, write_bytes_atomic, write_json_atomic
+from ..discovery import SYNTH_FRAMES, SYNTH_MARKER, SYNTH_VIDEO
 from ..errors import InputError
 from ..limits import DEFAULT_FPS
 from ..video import VideoWriter
@@ -166,7 +167,7 @@ def write_clip(
     scene = build_scene(cfg, seed)
     poses: list[str] = []
     per_frame: list[dict[str, Any]] = []
-    writer = VideoWriter(out_dir / "clip.mp4", fps=cfg.fps, crf=crf) if video else None
+    writer = VideoWriter(out_dir / SYNTH_VIDEO, fps=cfg.fps, crf=crf) if video else None
     try:
         for i in range(cfg.n_frames):
             f: SynthFrame = render_frame(scene, i)
@@ -175,7 +176,7 @@ def write_clip(
             if writer is not None:
                 writer.write(f.image)
             if frames:
-                _write_png(out_dir / "frames" / _frame_name(i), f.image)
+                _write_png(out_dir / SYNTH_FRAMES / _frame_name(i), f.image)
             if clean:
                 _write_png(out_dir / "clean" / _frame_name(i), f.clean)
             if depth:
@@ -208,7 +209,7 @@ def write_clip(
         fov, text = overlay.masks(cfg.height, cfg.width)
         _write_png(out_dir / "content.png", np.where(fov & ~text, 255, 0).astype(np.uint8))
         manifest["overlay"] = overlay.to_dict()
-    write_json_atomic(out_dir / "synth.json", manifest)
+    write_json_atomic(out_dir / SYNTH_MARKER, manifest)
     return out_dir
 
 
@@ -239,7 +240,7 @@ def _manifest(cfg: SynthConfig, seed: int, **written: bool) -> dict[str, Any]:
 def _is_complete(out_dir: Path, cfg: SynthConfig, seed: int, overlay: OverlaySpec | None = None) -> bool:
     """True if ``out_dir`` holds a finished clip of exactly this config, seed and overlay (resume support)."""
     try:
-        meta = json.loads((out_dir / "synth.json").read_text())
+        meta = json.loads((out_dir / SYNTH_MARKER).read_text())
     except (OSError, ValueError):
         return False
     drawn = overlay.to_dict() if overlay is not None and overlay.active else None

@@ -7,7 +7,7 @@ from fastapi import APIRouter
 from fastapi.responses import PlainTextResponse
 
 from colonlight import __version__
-from colonlight.limits import MAX_FPS
+from colonlight.limits import DEFAULT_FRAME_FORMAT, DEFAULT_JPEG_QUALITY, MAX_FPS
 
 from ..deps import Authenticated, ManagerDep
 from ..errors import error_responses
@@ -55,8 +55,8 @@ async def info(manager: ManagerDep) -> ServiceInfo:
             "method": s.method,
             "fps": s.fps,
             "model_size": s.model_size,
-            "format": "png",
-            "quality": 95,
+            "format": DEFAULT_FRAME_FORMAT,
+            "quality": DEFAULT_JPEG_QUALITY,
             "frames": True,
             "model": manager.model_info,
         },

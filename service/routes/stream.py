@@ -49,6 +49,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
 from starlette.websockets import WebSocketDisconnect
 
 from colonlight import ColonlightError, FrameResult, MethodStream
+from colonlight.limits import MAX_JPEG_QUALITY, MIN_JPEG_QUALITY
 
 from ..deps import key_is_valid
 from ..errors import ApiError
@@ -76,7 +77,9 @@ class _StreamStartBase(BaseModel):
     api_key: str | None = Field(None, description="The server's key, for clients that cannot send headers.")
     method: str | None = None
     format: Literal["jpeg", "png"] = Field("jpeg", description="Format of the enhanced frames sent back.")
-    quality: int = Field(90, ge=1, le=100, description="JPEG quality of the frames sent back.")
+    quality: int = Field(
+        90, ge=MIN_JPEG_QUALITY, le=MAX_JPEG_QUALITY, description="JPEG quality of the frames sent back."
+    )
     frames: bool = Field(True, description="Send the enhanced frames (false: the gamma records only).")
 
     def job_options(self) -> Any:

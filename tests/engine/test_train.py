@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from colonlight.checkpoint import load_weights
-from colonlight.train import SPECULAR_THRESHOLD, SequenceSet, TrainConfig, sequence_loss, train, window_starts
+from colonlight.train import SPECULAR_THRESHOLD, SequenceSet, TrainConfig, sequence_loss, train_model, window_starts
 
 
 def _flicker_clip(folder: Path, seed: int, n: int = 20, size: int = 48) -> Path:
@@ -75,20 +75,20 @@ def test_short_training_lowers_loss_and_resumes_identically(tmp_path: Path) -> N
     clips = [_flicker_clip(tmp_path / f"c{i}", seed=i) for i in range(3)]
     cfg = TrainConfig(size=32, epochs=3, batch=2, lr=2e-3, seed=0)
     torch.set_num_threads(1)
-    full = train(clips[:2], clips[2:], tmp_path / "full", cfg)
+    full = train_model(clips[:2], clips[2:], tmp_path / "full", cfg)
     losses = [h.train_loss for h in full.history]
     assert losses[-1] < losses[0]
     assert full.card["training"]["history"][-1]["val_loss"] is not None
 
-    partial = train(clips[:2], clips[2:], tmp_path / "part", TrainConfig(**{**vars(cfg), "epochs": 1}))
+    partial = train_model(clips[:2], clips[2:], tmp_path / "part", TrainConfig(**{**vars(cfg), "epochs": 1}))
     assert len(partial.history) == 1
-    resumed = train(clips[:2], clips[2:], tmp_path / "part", cfg)  # continues from epoch 1
+    resumed = train_model(clips[:2], clips[2:], tmp_path / "part", cfg)  # continues from epoch 1
     assert [h.epoch for h in resumed.history] == [1, 2, 3]
     a, b = load_weights(full.weights).net.state_dict(), load_weights(resumed.weights).net.state_dict()
     for k in a:
         assert torch.allclose(a[k].float(), b[k].float(), atol=1e-6), k
     # a resume with another learning rate uses it for the remaining epochs (not the saved optimizer's)
-    slower = train(clips[:2], clips[2:], tmp_path / "part", TrainConfig(**{**vars(cfg), "epochs": 4, "lr": 1e-4}))
+    slower = train_model(clips[:2], clips[2:], tmp_path / "part", TrainConfig(**{**vars(cfg), "epochs": 4, "lr": 1e-4}))
     state = json.loads((tmp_path / "part" / "checkpoints" / "epoch_004.json").read_text())
     assert [g["lr"] for g in state["param_groups"]] == [1e-4] and len(slower.history) == 4
     card = json.loads(full.weights.with_suffix(".json").read_text())

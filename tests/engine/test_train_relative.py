@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from colonlight.curves import gain_gamma_lut
-from colonlight.train import SequenceSet, TrainConfig, start_curve, train
+from colonlight.train import SequenceSet, TrainConfig, start_curve, train_model
 
 
 def _scene(rng: np.random.Generator, size: int = 32) -> np.ndarray:
@@ -67,7 +67,7 @@ def test_training_with_the_relative_objective_learns_and_records_it(tmp_path: Pa
     cfg = TrainConfig(
         size=32, seq_len=6, stride=4, batch=2, lr=3e-3, epochs=3, fps=None, head="gain-gamma", objective="relative"
     )
-    res = train(clips[:2], clips[2:], tmp_path / "run", cfg, name="rel")
+    res = train_model(clips[:2], clips[2:], tmp_path / "run", cfg, name="rel")
     assert res.card["training"]["objective"].startswith("mean |corrected - clean as the window's first frame")
     assert res.card["seed_frames"] == 0
     assert res.history[-1].train_loss < res.history[0].train_loss

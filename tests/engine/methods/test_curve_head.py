@@ -24,7 +24,7 @@ from colonlight.curves import curve_lut
 from colonlight.errors import OptionError
 from colonlight.methods.rnn import CURVE_SUMMARY_AT, RecurrentGammaMethod, curve_correction
 from colonlight.model import GammaNet
-from colonlight.train import TrainConfig, restore_loss, train
+from colonlight.train import TrainConfig, restore_loss, train_model
 
 LEVELS = np.arange(256, dtype=np.float64) / 255.0
 
@@ -169,7 +169,7 @@ def test_training_with_the_curve_head_and_the_temporal_term_learns_and_is_record
         objective="restore",
         temporal=1.0,
     )
-    res = train(clips[:2], clips[2:], tmp_path / "run", cfg, name="curve")
+    res = train_model(clips[:2], clips[2:], tmp_path / "run", cfg, name="curve")
     assert res.card["head"] == "curve" and "monotone tone curve" in res.card["architecture"]
     assert res.history[-1].train_loss < res.history[0].train_loss
     assert load_weights(res.weights).net.out_linear.out_features == CURVE_SEGMENTS

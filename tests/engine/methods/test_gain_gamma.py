@@ -16,7 +16,7 @@ from colonlight.curves import gain_gamma_lut, gamma_lut
 from colonlight.errors import CheckpointError
 from colonlight.methods.rnn import GAIN_MAX, GAIN_MIN, RecurrentGammaMethod, clamp_gain_gamma
 from colonlight.model import GammaNet
-from colonlight.train import TrainConfig, restore_loss, train
+from colonlight.train import TrainConfig, restore_loss, train_model
 
 
 def test_lut_is_the_formula_and_gain_one_is_the_gamma_lut() -> None:
@@ -121,7 +121,7 @@ def test_supervised_training_records_its_head_objective_and_seeds(tmp_path: Path
     cfg = TrainConfig(
         size=32, seq_len=6, stride=4, batch=2, lr=3e-3, epochs=3, fps=None, head="gain-gamma", objective="restore"
     )
-    res = train(clips[:2], clips[2:], tmp_path / "run", cfg, name="gg")
+    res = train_model(clips[:2], clips[2:], tmp_path / "run", cfg, name="gg")
     card = res.card
     assert card["head"] == "gain-gamma" and card["seed_frames"] == 0
     assert "clean" in card["training"]["objective"]
@@ -138,6 +138,6 @@ def test_supervised_objective_without_clean_frames_is_a_clear_error(tmp_path: Pa
     shutil.rmtree(folder.parent / "clean")
     cfg = TrainConfig(size=32, seq_len=6, stride=4, epochs=1, fps=None, head="gain-gamma", objective="restore")
     with pytest.raises(InputError, match="clean"):
-        train([folder], [], tmp_path / "run", cfg)
+        train_model([folder], [], tmp_path / "run", cfg)
     with pytest.raises(ValueError, match="objective"):
         TrainConfig(objective="nonsense")

@@ -30,7 +30,7 @@ from colonlight.methods.rnn import (  # noqa: E402
     network_input,
 )
 from colonlight.model import GammaNet, State  # noqa: E402
-from colonlight.onnx_export import export_onnx, read_sidecar, sidecar_path  # noqa: E402
+from colonlight.onnx_export import export_onnx, onnx_sidecar_path, read_sidecar  # noqa: E402
 from colonlight.onnx_step import cpu_session  # noqa: E402
 from colonlight.sources import clip_frames  # noqa: E402
 from colonlight.video import VideoWriter  # noqa: E402
@@ -110,8 +110,8 @@ def test_onnx_runtime_matches_torch_over_a_100_frame_clip(
 
 def test_sidecar_says_what_a_host_needs(shipped_onnx: Path) -> None:
     out = shipped_onnx
-    side = json.loads(sidecar_path(out).read_text())
-    assert sidecar_path(out).name == "colonlight-rnn.onnx.json"  # never colonlight-rnn.json, a weights card's name
+    side = json.loads(onnx_sidecar_path(out).read_text())
+    assert onnx_sidecar_path(out).name == "colonlight-rnn.onnx.json"  # never colonlight-rnn.json, a weights card's name
     shipped = load_weights()
     assert side["model"]["name"] == "colonlight-rnn" and side["model"]["sha256"] == shipped.sha256
     assert side["onnx"]["sha256"] == hashlib.sha256(out.read_bytes()).hexdigest()
@@ -182,7 +182,7 @@ def test_usage_and_input_errors_are_one_line(tmp_path: Path) -> None:
     bad.write_bytes(b"not a checkpoint")
     result = runner.invoke(app, ["export", "-o", str(tmp_path / "y.onnx"), "--weights", str(bad)])
     assert result.exit_code == 1 and str(bad) in result.output and "Traceback" not in result.output
-    assert not (tmp_path / "y.onnx").exists() and not sidecar_path(tmp_path / "y.onnx").exists()
+    assert not (tmp_path / "y.onnx").exists() and not onnx_sidecar_path(tmp_path / "y.onnx").exists()
 
 
 @pytest.mark.parametrize(
