@@ -18,7 +18,6 @@ import httpx
 import numpy as np
 import pytest
 
-from ..conftest import AUTHORS_CKPT
 from ..service_server import ServiceServer
 
 CHROMIUM = Path(os.environ.get("COLONLIGHT_CHROMIUM", "/usr/bin/chromium"))
@@ -61,37 +60,31 @@ def endoscopy_like_clip(path: Path, n: int = 72, fps: float = 24.0, size: tuple[
     return path
 
 
-def fixture_clip(path: Path, frames_dir: Path, fps: float = 16.0) -> Path:
-    """The reference fixture's synthetic colonoscopy frames, played forward and back, under a light source whose
-    strength dips and recovers (what the model is for); written with the engine's H.264 writer."""
-    import cv2
+def generated_clip(path: Path) -> Path:
+    """A 3-second clip from colonlight's own generator (held-out settings, disturbed lighting, 30 fps), as
+    ``colonlight demo`` renders it: what the README's screenshot shows (no frames of anyone else's data)."""
+    from colonlight.synth import SYNTH_VIDEO, SynthConfig, write_clip
 
-    from colonlight.video import VideoWriter
-
-    frames = [cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) for p in sorted(frames_dir.glob("*.png"))]
-    frames = frames + frames[::-1]
-    with VideoWriter(path, fps=fps) as writer:
-        for i, f in enumerate(frames):
-            gain = 1.0 - 0.6 * math.exp(-(((i - len(frames) * 0.55) / 6.0) ** 2))
-            writer.write(np.clip(f.astype(np.float32) * gain, 0, 255).astype(np.uint8))
+    seed = 20210628
+    cfg = SynthConfig.sample(
+        np.random.default_rng(seed), split="heldout", width=480, height=384, n_frames=90, fps=30.0,
+        undisturbed_seeds=True,
+    )  # fmt: skip
+    write_clip(path.parent / "synth", cfg, seed=seed, video=True, frames=False)
+    shutil.move(path.parent / "synth" / SYNTH_VIDEO, path)
     return path
 
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory: pytest.TempPathFactory, random_weights: Path) -> Iterator[ServiceServer]:
-    """The authors' checkpoint when ../shared has it (a realistic gamma curve), else the test weights."""
-    weights = AUTHORS_CKPT if AUTHORS_CKPT.is_file() else random_weights
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServiceServer]:
+    """The shipped default model, as a user's server runs it (the README's screenshot shows it)."""
     data = tmp_path_factory.mktemp("browser") / "data"
-    with ServiceServer(data, {"COLONLIGHT_WEIGHTS": str(weights), "COLONLIGHT_WORKERS": "1"}) as srv:
+    with ServiceServer(data, {"COLONLIGHT_WORKERS": "1"}) as srv:
         yield srv
 
 
 def test_drop_a_clip_and_watch_it(server: ServiceServer, tmp_path: Path) -> None:
-    frames_dir = AUTHORS_CKPT.parent / "frames_native"
-    if frames_dir.is_dir():
-        clip = fixture_clip(tmp_path / "colonoscopy clip.mp4", frames_dir)
-    else:
-        clip = endoscopy_like_clip(tmp_path / "colonoscopy clip.mp4")
+    clip = generated_clip(tmp_path / "colonoscopy clip.mp4")
     shot = tmp_path / "service_screenshot.png"
     with sync_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS, headless=True)
