@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 pytest.importorskip("onnxruntime", reason="the export extra (onnxruntime) is not installed")
 pytest.importorskip("onnxscript", reason="the export extra (onnxscript) is not installed")
@@ -26,10 +25,11 @@ from colonlight.methods.rnn import (  # noqa: E402
     clamp_gamma,
     curve_correction,
 )
-from colonlight.model import GammaNet  # noqa: E402
 from colonlight.onnx_export import export_onnx  # noqa: E402
 from colonlight.sources import clip_frames  # noqa: E402
 from colonlight.video import VideoWriter  # noqa: E402
+
+from ...networks import random_head_weights  # noqa: E402
 
 HOST_DIR = Path(__file__).resolve().parents[3] / "examples" / "cpp_host"
 WIDTH, HEIGHT, FRAMES = 256, 208, 30  # >= 4 x 48 on the short side: the host halves it once, then area-resizes
@@ -83,31 +83,13 @@ def clip(tmp_path_factory: pytest.TempPathFactory) -> list[np.ndarray]:
     return frames
 
 
-def _random_head(head: str, tmp_path: Path) -> LoadedWeights:
-    """A network with the given head and a random output layer, so that its outputs move from frame to frame."""
-    torch.manual_seed(2)
-    net = GammaNet(head=head).eval()
-    with torch.no_grad():
-        net.out_linear.weight.normal_(0.0, 0.5)
-        if head == "gamma":  # a around 1: a usable gamma rather than the ReLU's floor
-            net.out_linear.bias.fill_(1.0)
-    seeds = 2 if head == "gamma" else 0
-    return LoadedWeights(
-        net=net,
-        name=head,
-        sha256="3" * 64,
-        path=tmp_path / f"{head}.safetensors",
-        card={"input_size": 32, "seed_frames": seeds},
-    )
-
-
 def _weights(which: str, tmp_path: Path, request: pytest.FixtureRequest) -> tuple[LoadedWeights, int]:
     if which == "shipped":
         weights = load_weights()
         return weights, int(weights.card["input_size"])
     if which == "authors":
         return load_weights(request.getfixturevalue("authors_checkpoint")), 48
-    return _random_head(which, tmp_path), 32
+    return random_head_weights(which, tmp_path / f"{which}.safetensors", "3" * 64), 32
 
 
 def _run_host(host: Path, onnx: Path, frames: list[np.ndarray], out: Path) -> list[dict[str, object]]:

@@ -35,6 +35,8 @@ from colonlight.onnx_step import cpu_session  # noqa: E402
 from colonlight.sources import clip_frames  # noqa: E402
 from colonlight.video import VideoWriter  # noqa: E402
 
+from ...networks import random_head_weights  # noqa: E402
+
 runner = CliRunner()
 CLIP_FRAMES = 100
 TOLERANCE = 1e-5
@@ -198,13 +200,7 @@ def test_a_head_with_raw_outputs_exports_as_z_with_its_correction_and_runs_on_on
     """The gain-gamma and curve heads (random output layers, so the outputs move): one output ``z``, the sidecar's
     rule, table and correction numbers for that head, and the rnn method on ONNX Runtime matching torch."""
     monkeypatch.setenv("COLONLIGHT_CACHE_DIR", str(tmp_path / "cache"))
-    torch.manual_seed(2)
-    net = GammaNet(head=head).eval()
-    with torch.no_grad():
-        net.out_linear.weight.normal_(0.0, 0.5)  # away from the identity start, so the outputs move
-    weights = LoadedWeights(
-        net=net, name=head, sha256="1" * 64, path=tmp_path / "w.safetensors", card={"input_size": 32, "seed_frames": 0}
-    )
+    weights = random_head_weights(head, tmp_path / "w.safetensors", "1" * 64)
     record = export_onnx(weights, tmp_path / "w.onnx", size=32)
     assert [o["name"] for o in record["outputs"]] == ["z", "h_out", "c_out"]
     assert record["outputs"][0]["shape"] == [1, n_outputs] and record["seed_frames"]["count"] == 0
