@@ -63,6 +63,19 @@ def _clips(paths: list[Path]) -> list[Path]:
     return clips
 
 
+def _init_head(init: str | None) -> str:
+    """The head a run keeps when ``--head`` is not given: the starting checkpoint's (fine-tuning the shipped
+    gain-gamma model keeps its head and output layer), else the paper's one gamma."""
+    if not init:
+        return "gamma"
+    from colonlight import CheckpointError, load_weights
+
+    try:
+        return load_weights(init).net.head
+    except CheckpointError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--init") from None
+
+
 def train_cmd(
     ctx: typer.Context,
     data: list[Path] | None = typer.Argument(None, help="Clips: videos and/or frame folders (walked recursively)."),
@@ -101,11 +114,12 @@ def train_cmd(
         max=1.0,
         help="Fraction of synthetic clips whose first two frames are undisturbed.",
     ),
-    head: str = typer.Option(
-        "gamma",
+    head: str | None = typer.Option(
+        None,
         "--head",
         help="gamma (the paper's: one gamma per frame) | gain-gamma (a gain and a gamma per frame) | "
-        "curve (a monotone tone curve per frame).",
+        "curve (a monotone tone curve per frame). Default: the --init checkpoint's head, else gamma.",
+        show_default=False,
     ),
     objective: str = typer.Option(
         "paper",
@@ -152,6 +166,12 @@ def train_cmd(
 ) -> None:
     """Train a model; writes OUTPUT/NAME.safetensors and its model card OUTPUT/NAME.json."""
     command = invocation(ctx)
+    if method == "rnn" and init == "default":
+        from colonlight import DEFAULT_WEIGHTS
+
+        init = str(DEFAULT_WEIGHTS)
+    if method == "rnn" and head is None:
+        head = _init_head(init)
     train_clips = _clips(list(data or []))
     val_clips = _clips(list(val or []))
     extra: dict[str, object] = {"command": command}
@@ -207,10 +227,6 @@ def train_cmd(
         return
     if method != "rnn":
         raise typer.BadParameter("choose rnn, zerodce or zerodce++", param_hint="--method")
-    if init == "default":
-        from colonlight import DEFAULT_WEIGHTS
-
-        init = str(DEFAULT_WEIGHTS)
     # Imported here, not at the top: other commands (enhance above all) do without torch's training side and kornia.
     from colonlight import OptionError, TrainConfig, train_model
 
@@ -226,7 +242,7 @@ def train_cmd(
             fps=fps or None,
             init=init,
             anchor=anchor,
-            head=head,
+            head=head or "gamma",
             objective=objective,
             consistency=consistency,
             temporal=temporal,

@@ -273,8 +273,8 @@ class _Placement:
         if self.has_holes:  # holes := the content's mean colour (cleared, then the mean added, both masked)
             mean = tuple(float(round(v)) for v in cv2.mean(box, mask=self.inside_u8)[:3]) + (0.0,)
             cv2.subtract(box, box, dst=box, mask=self.holes_u8)
-            # ``mean`` is a Scalar, which cv2.add takes as src2; its stubs list arrays only
-            cv2.add(box, mean, dst=box, mask=self.holes_u8)  # type: ignore[call-overload]
+            # ``mean`` is a Scalar, which cv2.add takes as src2; older stubs (opencv-python < 5.1) list arrays only
+            cv2.add(box, mean, dst=box, mask=self.holes_u8)  # type: ignore[call-overload, unused-ignore]
         return box
 
     def output(self, frame: np.ndarray, enhanced_box: np.ndarray) -> np.ndarray:

@@ -67,6 +67,8 @@ class JobManager:
         self.store: JobStore | None = None
         self.runner: ClipRunner | None = None
         self.default_spec = self.method_spec(JobOptions())
+        #: torch's intra-op threads in this server process (set once, when the model loads)
+        self.torch_threads = torch_threads(settings.torch_threads, self.default_spec, settings.workers)
 
     # ------------------------------------------------------------------------------------------ options
 
@@ -138,10 +140,9 @@ class JobManager:
             self.sweeper.start()
             return
         self.lifecycle.runner = self.sync.runner = self.runner
-        threads = torch_threads(self.settings.torch_threads, self.settings.workers)
         threading.Thread(
             target=self.model.load,
-            args=(self.methods, self.default_spec, threads),
+            args=(self.methods, self.default_spec, self.torch_threads),
             name="colonlight-load-model",
             daemon=True,
         ).start()

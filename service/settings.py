@@ -105,7 +105,12 @@ class Settings(BaseSettings):
     fps: float = Field(DEFAULT_FPS, ge=0, le=MAX_FPS, description="Default extraction rate (0 keeps every frame).")
     cluster: str | None = Field(None, description="Dask scheduler address: run clips there instead of locally.")
     method_cache: int = Field(4, ge=1, le=64, description="Methods with non-default options kept loaded (LRU).")
-    torch_threads: int | None = Field(None, ge=1, description="torch intra-op threads (default: cores / workers).")
+    torch_threads: int | None = Field(
+        None,
+        ge=1,
+        description="torch intra-op threads (default: 1 for the recurrent net at its small input size, "
+        "else cores / workers).",
+    )
     log_level: str = Field("info", description="uvicorn log level.")
     malloc_arena_max: int = Field(2, ge=0, description="glibc malloc arenas (0: glibc's default); keeps memory flat.")
     stream_max: int = Field(

@@ -66,6 +66,7 @@ async def info(manager: ManagerDep) -> ServiceInfo:
             "sync_max_seconds": s.sync_max_seconds,
             "result_ttl_seconds": s.result_ttl_seconds,
             "workers": s.workers,
+            "torch_threads": manager.torch_threads,
             "queue_size": s.queue_size,
             "stream_max": s.stream_max,
             "stream_max_frame_mb": s.stream_max_frame_mb,

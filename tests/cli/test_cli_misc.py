@@ -10,6 +10,8 @@ from colonlight_cli.main import app
 from typer.testing import CliRunner
 
 runner = CliRunner()
+#: ``colonlight train`` flags for the smallest synthetic run: 12-frame clips at 48 px, one validation clip
+TINY_SYNTHETIC = ("--synthetic-frames", "12", "--synthetic-val", "1", "--synthetic-size", "48")
 
 
 def test_synth_command_writes_clips_with_ground_truth(tmp_path: Path) -> None:
@@ -54,12 +56,7 @@ def test_train_command_on_synthetic_clips(tmp_path: Path) -> None:
             "train",
             "--synthetic",
             "2",
-            "--synthetic-frames",
-            "12",
-            "--synthetic-val",
-            "1",
-            "--synthetic-size",
-            "48",
+            *TINY_SYNTHETIC,
             "--size",
             "32",
             "--epochs",
@@ -134,3 +131,44 @@ def test_train_defaults_to_the_inference_size() -> None:
     from colonlight.train import TrainConfig
 
     assert inspect.signature(train_cmd).parameters["size"].default.default == TrainConfig().size == DEFAULT_MODEL_SIZE
+
+
+def _fine_tune(tmp_path: Path, name: str, *extra: str) -> dict:  # type: ignore[type-arg]
+    result = runner.invoke(
+        app,
+        [
+            "train",
+            "--synthetic",
+            "1",
+            *TINY_SYNTHETIC,
+            "--epochs",
+            "1",
+            "--seq-len",
+            "4",
+            "--stride",
+            "4",
+            "--init",
+            "default",
+            "-o",
+            str(tmp_path / name),
+            *extra,
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    return json.loads((tmp_path / name / "colonlight-rnn.json").read_text())  # type: ignore[no-any-return]
+
+
+def test_fine_tuning_keeps_the_starting_models_head_unless_told(tmp_path: Path) -> None:
+    from colonlight import load_weights
+
+    shipped = load_weights(None).net.head
+    assert shipped != "gamma"  # else this test could not tell the two defaults apart
+    assert _fine_tune(tmp_path, "kept")["head"] == shipped
+    assert _fine_tune(tmp_path, "asked", "--head", "gamma")["head"] == "gamma"
+
+
+def test_train_with_an_unreadable_init_is_a_usage_error(tmp_path: Path) -> None:
+    bad = tmp_path / "broken.safetensors"
+    bad.write_bytes(b"not a checkpoint")
+    result = runner.invoke(app, ["train", str(tmp_path), "--init", str(bad), "-o", str(tmp_path / "r")])
+    assert result.exit_code == 2 and "broken.safetensors" in result.output

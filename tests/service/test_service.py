@@ -382,6 +382,8 @@ def test_web_page_is_served(client: httpx.Client) -> None:
     assert (
         "rnn" in info["methods"] and info["auth_required"] is False and info["limits"]["max_upload_mb"] == MAX_UPLOAD_MB
     )
+    # the default method's worker setting (colonlight.network_threads): one thread for the small recurrent net
+    assert info["limits"]["torch_threads"] == 1
 
 
 def test_frames_total_at_submission_is_the_final_count(client: httpx.Client, tmp_path: Path) -> None:
