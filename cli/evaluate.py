@@ -227,15 +227,7 @@ def evaluate(
 ) -> None:
     """Measure lighting consistency, exposure, tracking, COLMAP and cost of each method; write OUTPUT/report.html,
     results.json, table.md, table.csv and clips.csv."""  # fmt: skip
-    from colonlight.evaluation import (
-        evaluate_clips,
-        find_clips,
-        make_benchmark,
-        method_list,
-        require_extras,
-        summarize,
-        write_report,
-    )
+    from colonlight.evaluation import require_extras
 
     names = _method_names(methods)
     options.check_fps(fps)
@@ -248,6 +240,9 @@ def evaluate(
     except ColonlightError as exc:
         error_line(str(exc))
         raise typer.Exit(2) from None
+    # only now: the evaluation's own modules import the extra's packages
+    from colonlight.evaluation import evaluate_clips, find_clips, make_benchmark, method_list, summarize, write_report
+
     if not inputs and not synthetic:
         raise typer.BadParameter("give clips to evaluate, or --synthetic N", param_hint="INPUTS")
     rows = [*names, *(["rnn"] if authors_checkpoint is not None and "rnn" not in names else [])]

@@ -426,11 +426,11 @@ def run_on_cluster(
     Raises :class:`ColonlightError` (one line) when the scheduler is unreachable, no worker is connected, or the
     workers do not share this machine's files; per-clip problems are failed outcomes, as in a local run.
     """
-    from distributed import as_completed
-
     if not jobs:
         return
-    with ClusterRunner(address) as runner:
+    with ClusterRunner(address) as runner:  # first: it says in one line when Dask is not installed
+        from distributed import as_completed
+
         runner.check(jobs, spec)
         run = uuid.uuid4().hex if progress else None
         events: queue.SimpleQueue[ProgressEvent] = queue.SimpleQueue()

@@ -26,8 +26,8 @@ _EXPORTS: dict[str, str] = {
     "evaluate_clip": "runner",
     "evaluate_clips": "runner",
     "method_list": "runner",
-    "missing_extras": "runner",
-    "require_extras": "runner",
+    "missing_extras": "requirements",
+    "require_extras": "requirements",
     "failure_breakdown": "summary",
     "summarize": "summary",
     "BRIGHTNESS_MODES": "tracker",
@@ -40,14 +40,13 @@ if TYPE_CHECKING:
     from .clips import ClipRef, EvalClip, find_clips, make_benchmark
     from .records import ClipRecord, EvaluationResult, MethodClipResult
     from .report import fmt, fmt_pair, success_cell, write_report
+    from .requirements import missing_extras, require_extras
     from .runner import (
         DEFAULT_METHODS,
         EvalMethod,
         evaluate_clip,
         evaluate_clips,
         method_list,
-        missing_extras,
-        require_extras,
     )
     from .summary import failure_breakdown, summarize
     from .tracker import BRIGHTNESS_MODES, TrackerSettings, TrackResult, track_clip

@@ -30,7 +30,6 @@ import cv2
 import numpy as np
 
 from ..errors import ColonlightError, OptionError
-from ..extras import install_command
 from ..limits import DEFAULT_FPS
 from ..methods import Method, available_methods, create_method
 from ..methods.options import methods_kwargs
@@ -99,26 +98,6 @@ def method_list(
         authors = EvalMethod.of("rnn (authors)", "rnn", **{**kwargs.get("rnn", {}), "weights": str(authors_checkpoint)})
         out.insert(names.index("rnn") + 1 if "rnn" in names else len(out), authors)
     return out
-
-
-def missing_extras(colmap: bool = True) -> list[str]:
-    """Distributions of the ``eval`` extra this evaluation needs that are not installed."""
-    import importlib.util
-
-    needed = {"skimage": "scikit-image", "matplotlib": "matplotlib", "scipy": "scipy"}
-    if colmap:
-        needed.update(pycolmap="pycolmap", evo="evo")
-    return [dist for module, dist in needed.items() if importlib.util.find_spec(module) is None]
-
-
-def require_extras(colmap: bool = True) -> None:
-    """:class:`ColonlightError` (one line) naming what to install when part of the ``eval`` extra is missing."""
-    missing = missing_extras(colmap)
-    if missing:
-        raise ColonlightError(
-            f"colonlight evaluate needs {', '.join(missing)}: {install_command('eval')}"
-            + (" (or run with --no-colmap)" if {"pycolmap", "evo"} & set(missing) else "")
-        )
 
 
 # ----------------------------------------------------------------------------------------------- scoring
@@ -612,7 +591,5 @@ __all__ = [
     "failure_breakdown",
     "input_label",
     "method_list",
-    "missing_extras",
-    "require_extras",
     "summarize",
 ]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -10,6 +11,8 @@ import pytest
 from click.testing import Result
 from colonlight_cli.main import app
 from typer.testing import CliRunner
+
+from tests.media import make_clip
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -58,3 +61,36 @@ def test_install_command_for_a_wheel_and_unknown_extras(monkeypatch: pytest.Monk
     assert extras.install_command("cluster").endswith("install 'colonlight[cluster]'")
     with pytest.raises(ValueError, match="unknown extra"):
         extras.install_command("gpu")
+
+
+def _fresh_process_without(modules: list[str], *args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    """``colonlight ARGS`` in a new interpreter where the named modules cannot be imported, as for a user who
+    never installed the extra (a fresh process: nothing of the extra is imported already, as it may be here)."""
+    code = (
+        "import sys\n"
+        f"for name in {modules!r}: sys.modules[name] = None\n"
+        "from colonlight_cli.main import run\n"
+        f"sys.argv = ['colonlight', *{list(args)!r}]\n"
+        "run()\n"
+    )
+    env = {**os.environ, "PATH": "/usr/bin:/bin"}
+    return subprocess.run([sys.executable, "-c", code], cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
+
+
+def test_evaluate_without_any_of_the_eval_extra_says_what_to_install(tmp_path: Path) -> None:
+    from colonlight.evaluation.requirements import ALWAYS_NEEDED, COLMAP_NEEDED
+
+    clip = make_clip(tmp_path / "clip.mp4", n_frames=6)
+    done = _fresh_process_without([*ALWAYS_NEEDED, *COLMAP_NEEDED], "evaluate", str(clip), cwd=REPO)
+    out = " ".join((done.stdout + done.stderr).split())
+    assert done.returncode == 2 and "Traceback" not in out, out
+    assert "needs scikit-image, matplotlib, scipy, pycolmap, evo:" in out and "install -e '.[eval]'" in out, out
+
+
+def test_enhance_on_a_cluster_without_dask_says_what_to_install(tmp_path: Path) -> None:
+    clip = make_clip(tmp_path / "clip.mp4", n_frames=6)
+    args = ("enhance", str(clip), "-o", str(tmp_path / "out"), "--cluster", "tcp://127.0.0.1:1", "-q")
+    done = _fresh_process_without(["distributed"], *args, cwd=REPO)
+    out = " ".join((done.stdout + done.stderr).split())
+    assert done.returncode != 0 and "Traceback" not in out, out
+    assert "needs Dask distributed" in out and "install -e '.[cluster]'" in out, out
