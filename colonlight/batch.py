@@ -15,12 +15,10 @@ What a batch guarantees (the README's reliability section says the same for user
 
 from __future__ import annotations
 
-import contextlib
 import multiprocessing as mp
 import os
 import queue
 import signal
-import sys
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -47,6 +45,7 @@ from .methods import Method
 from .outdir import output_lock
 from .pipeline import GAMMAS_FILE, ClipOptions
 from .tuning import network_threads, tune_for_clips
+from .worker_process import die_with_parent
 
 MANIFEST_FILE = "manifest.json"
 #: How names that are not valid UTF-8 appear in the manifest (and in every gammas.json): see atomic.json_bytes.
@@ -141,27 +140,8 @@ def default_workers(n_clips: int) -> int:
 #: Signals that stop a batch; held back while pool workers are started, so that a worker never starts with
 #: Python's default Ctrl-C handler (it ignores SIGINT: the batch process decides, see _run_pool).
 _STOP_SIGNALS = frozenset({signal.SIGINT, signal.SIGTERM})
-_PR_SET_PDEATHSIG = 1  # linux/prctl.h
 #: In a pool worker: the queue its progress events go to (handed over at start, see _init_pool_worker).
 _EVENTS: Any = None
-
-
-def _die_with_parent(parent_pid: int) -> None:
-    """Have the kernel SIGKILL this worker when the batch process dies, however it dies (``kill -9`` included:
-    no ``atexit`` or signal handler of the parent runs then). Linux's ``PR_SET_PDEATHSIG``; elsewhere only the
-    check below. The parent may have died before the ``prctl``: then it is not our parent any more.
-
-    The kernel watches the parent *thread* that started the worker: the pool starts all its workers in the
-    thread that runs the batch (on ``submit``; no ``max_tasks_per_child``, which would start them elsewhere),
-    and that thread outlives the pool."""
-    if sys.platform.startswith("linux"):
-        import ctypes
-
-        # no prctl in this libc: the ppid check still catches a dead parent
-        with contextlib.suppress(OSError, AttributeError):
-            ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
-    if os.getppid() != parent_pid:
-        os._exit(1)
 
 
 def _init_pool_worker(threads: int, parent_pid: int, events: Any) -> None:
@@ -171,7 +151,7 @@ def _init_pool_worker(threads: int, parent_pid: int, events: Any) -> None:
     import gc
 
     global _EVENTS
-    _die_with_parent(parent_pid)
+    die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
     _EVENTS = events

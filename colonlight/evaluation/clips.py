@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import multiprocessing
+import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -38,6 +39,7 @@ from ..sources import clip_frames
 from ..synth import SynthConfig, decode_depth, write_clip
 from ..synth.config import Split
 from ..synth.writer import read_tum
+from ..worker_process import die_with_parent
 
 DEFAULT_MAX_SIZE = 256
 #: Seeds of the benchmark's clips start here: training used 1000-1099 and the quality gate 700000-700023.
@@ -365,7 +367,9 @@ def make_benchmark(
                 on_clip(job[0], True)
     else:
         ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        with ProcessPoolExecutor(
+            max_workers=workers, mp_context=ctx, initializer=die_with_parent, initargs=(os.getpid(),)
+        ) as pool:
             for folder in pool.map(_render_job, jobs):
                 if on_clip:
                     on_clip(folder, True)

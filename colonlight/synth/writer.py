@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import multiprocessing
+import os
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,7 @@ from ..discovery import SYNTH_FRAMES, SYNTH_MARKER, SYNTH_VIDEO
 from ..errors import InputError
 from ..limits import DEFAULT_FPS
 from ..video import VideoWriter
+from ..worker_process import die_with_parent
 from .clip import SynthFrame, build_scene, render_frame
 from .config import Split, SynthConfig
 from .overlay import OverlaySpec
@@ -259,8 +261,10 @@ def _dataset_job(args: tuple[Path, dict[str, Any], int, dict[str, Any]]) -> Path
     return write_clip(out_dir, cfg, seed, **flags)
 
 
-def _init_worker() -> None:
-    cv2.setNumThreads(1)  # one process per core already
+def _init_worker(parent_pid: int) -> None:
+    """A render worker: dies with the process rendering the dataset, one OpenCV thread (one process per core)."""
+    die_with_parent(parent_pid)
+    cv2.setNumThreads(1)
 
 
 def make_dataset(
@@ -315,5 +319,7 @@ def make_dataset(
     if workers <= 1 or len(jobs) <= 1:
         return [_dataset_job(j) for j in jobs]
     ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker) as pool:
+    with ProcessPoolExecutor(
+        max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(os.getpid(),)
+    ) as pool:
         return list(pool.map(_dataset_job, jobs))

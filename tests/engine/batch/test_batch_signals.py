@@ -97,13 +97,49 @@ def test_sigkill_of_the_batch_leaves_no_worker(long_clips: Path, tmp_path: Path)
     finally:
         proc.kill()
         proc.wait()
-    deadline = time.monotonic() + 10
+    left = left_behind(children)
+    assert not left, f"processes left behind by a SIGKILLed batch: {sorted(left)}"
+
+
+def left_behind(children: set[int], grace: float = 10) -> set[int]:
+    """Which of ``children`` are still alive ``grace`` seconds after their parent died (killed, so that they
+    are not left to the next test)."""
+    deadline = time.monotonic() + grace
     while alive(children) and time.monotonic() < deadline:
         time.sleep(0.05)
     left = alive(children)
-    for pid in left:  # do not leave them to the next test
+    for pid in left:
         os.kill(pid, signal.SIGKILL)
-    assert not left, f"processes left behind by a SIGKILLed batch: {sorted(left)}"
+    return left
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
+def test_the_generators_render_workers_die_with_it(tmp_path: Path, signum: signal.Signals) -> None:
+    """``colonlight synth`` (and ``train --synthetic``, ``evaluate --synthetic``) render in a process pool: its
+    workers must not go on rendering, orphaned, after the command is stopped."""
+    out = tmp_path / "clips"
+    proc = subprocess.Popen(
+        command("synth", out, "--clips", "40", "--frames", "40", "--width", "160", "--height", "128", "--workers", "2"),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + 180
+        workers: set[int] = set()
+        while time.monotonic() < deadline and proc.poll() is None and len(workers) < 2:
+            workers = {
+                p
+                for p in descendants(proc.pid)
+                if "multiprocessing.spawn" in Path(f"/proc/{p}/cmdline").read_text(errors="replace")
+            }
+            time.sleep(0.05)
+        assert len(workers) == 2, f"no render workers seen (exit {proc.poll()})"
+        children = descendants(proc.pid)
+    finally:
+        proc.send_signal(signum)
+        proc.wait()
+    left = left_behind(children)
+    assert not left, f"render workers left behind by {signum.name}: {sorted(left)}"
 
 
 CASES = [  # workers, signal, sent to, expected exit code, the method's options (the real model once: it is slower)
