@@ -62,6 +62,18 @@ def descendants(pid: int) -> set[int]:
     return found
 
 
+def pool_workers(pid: int) -> set[int]:
+    """The process-pool workers (started with ``spawn``) below ``pid``; one that has just exited is not one."""
+    found = set()
+    for p in descendants(pid):
+        try:
+            if "multiprocessing.spawn" in Path(f"/proc/{p}/cmdline").read_text(errors="replace"):
+                found.add(p)
+        except OSError:
+            pass
+    return found
+
+
 def alive(pids: set[int]) -> set[int]:
     out = set()
     for pid in pids:
@@ -92,7 +104,7 @@ def test_sigkill_of_the_batch_leaves_no_worker(long_clips: Path, tmp_path: Path)
     try:
         wait_for_frames(out, proc, 10)
         children = descendants(proc.pid)
-        workers = {p for p in children if "multiprocessing.spawn" in Path(f"/proc/{p}/cmdline").read_text()}
+        workers = pool_workers(proc.pid)
         assert len(workers) == 2, children
     finally:
         proc.kill()
@@ -127,11 +139,7 @@ def test_the_generators_render_workers_die_with_it(tmp_path: Path, signum: signa
         deadline = time.monotonic() + 180
         workers: set[int] = set()
         while time.monotonic() < deadline and proc.poll() is None and len(workers) < 2:
-            workers = {
-                p
-                for p in descendants(proc.pid)
-                if "multiprocessing.spawn" in Path(f"/proc/{p}/cmdline").read_text(errors="replace")
-            }
+            workers = pool_workers(proc.pid)
             time.sleep(0.05)
         assert len(workers) == 2, f"no render workers seen (exit {proc.poll()})"
         children = descendants(proc.pid)
