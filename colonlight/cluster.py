@@ -79,7 +79,7 @@ def cluster_timeout() -> float:
 
 
 @dataclass(frozen=True)
-class _TaskCheck:
+class TaskCheck:
     """What a task verifies on its worker before running the clip."""
 
     out_dir_seen: bool  # the client created the clip's output folder: the worker must see it
@@ -132,7 +132,7 @@ def _read_token(path: Path) -> str | None:
         return None
 
 
-def cluster_task(job: ClipJob, spec: MethodSpec, opts: ClipOptions, overwrite: bool, check: _TaskCheck) -> ClipOutcome:
+def cluster_task(job: ClipJob, spec: MethodSpec, opts: ClipOptions, overwrite: bool, check: TaskCheck) -> ClipOutcome:
     """The Dask task of one clip: check that this worker shares the clip's files, then :func:`run_clip`."""
     worker = _worker_address()
 
@@ -345,7 +345,7 @@ class ClusterRunner:
             out_dir_seen = True
         except OSError:
             out_dir_seen = False  # cannot create it here: the worker's run will report why
-        check = _TaskCheck(out_dir_seen, Path(job.source).exists(), self._expected_model(spec), run)
+        check = TaskCheck(out_dir_seen, Path(job.source).exists(), self._expected_model(spec), run)
         return self.client.submit(
             cluster_task,
             job,

@@ -22,6 +22,7 @@ from colonlight_cli.main import app
 from typer.testing import CliRunner
 
 from ..media import make_clip, make_image_folder, text_file, truncated_copy, zero_byte_file
+from ..outputs import output_bytes, tree_bytes
 
 runner = CliRunner()
 
@@ -41,20 +42,6 @@ def tree(tmp_path: Path) -> Path:
     make_image_folder(root / "seq", n=12)
     text_file(root / "notes.txt")
     return root
-
-
-def _tree_bytes(root: Path) -> dict[str, bytes]:
-    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
-
-
-def _outputs(root: Path) -> dict[str, bytes]:
-    """Every output byte except the manifest's run timings."""
-    files = _tree_bytes(root)
-    manifest = json.loads(files.pop("manifest.json"))
-    for c in manifest["clips"]:
-        c.pop("seconds"), c.pop("skipped", None)
-    files["manifest.json"] = json.dumps(manifest, sort_keys=True).encode()
-    return files
 
 
 def test_tree_layout_and_gammas(tree: Path, tmp_path: Path, random_weights: Path) -> None:
@@ -212,13 +199,13 @@ def test_resume_skips_complete_and_overwrite_redoes(tree: Path, tmp_path: Path, 
     out = tmp_path / "out"
     args = ("enhance", tree, "-o", out, "--weights", random_weights, "-q")
     assert invoke(*args)[0] == 0
-    before = _outputs(out)
+    before = output_bytes(out)
     code, text = invoke(*args)
     assert code == 0 and sum(ln.startswith("skipped ") for ln in text.splitlines()) == 3
-    assert _outputs(out) == before
+    assert output_bytes(out) == before
     code, text = invoke(*args, "--overwrite")
     assert code == 0 and not any(ln.startswith("skipped ") for ln in text.splitlines())
-    assert _outputs(out) == before
+    assert output_bytes(out) == before
     code, text = invoke("enhance", tree, "-o", out, "--weights", random_weights, "-q", "--format", "jpg")
     assert code == 0 and not any(ln.startswith("skipped ") for ln in text.splitlines())  # other settings: redone
     assert not list(out.rglob("*.png"))
@@ -276,7 +263,7 @@ def test_kill_9_then_rerun_is_byte_identical(tmp_path: Path, random_weights: Pat
     rerun = subprocess.run([*cmd, "-o", str(out)], capture_output=True, text=True, timeout=300)
     assert rerun.returncode == 0, rerun.stderr
     assert not [p for p in out.rglob("*") if "colonlight-tmp" in p.name]
-    assert _outputs(out) == _outputs(clean)
+    assert output_bytes(out) == output_bytes(clean)
     shutil.rmtree(out)
 
 
@@ -415,4 +402,4 @@ def test_an_abort_from_the_method_stops_the_writers_cleanly(
     assert not (out / "gammas.json").exists()
     monkeypatch.undo()
     pipeline.enhance_clip(clip, out, create_method("rnn", **options))
-    assert _tree_bytes(out) == _tree_bytes(clean)
+    assert tree_bytes(out) == tree_bytes(clean)

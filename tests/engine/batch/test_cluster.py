@@ -27,12 +27,12 @@ pytest.importorskip(
 from distributed import Client
 
 from colonlight.batch import ClipJob, ClipOutcome, MethodSpec, discover_clips, run_batch
-from colonlight.cluster import MARKER_NAME, ClusterRunner, _TaskCheck, cluster_task
+from colonlight.cluster import MARKER_NAME, ClusterRunner, TaskCheck, cluster_task
 from colonlight.errors import ColonlightError
 from colonlight.pipeline import ClipOptions
-from tests.cli.test_cli_enhance import _outputs
 
 from ...media import make_clip, make_image_folder
+from ...outputs import output_bytes
 
 COLONLIGHT = [sys.executable, "-c", "from colonlight_cli.main import run; run()"]
 START_TIMEOUT = 60  # s, for a scheduler or worker process to come up (first imports can be slow on CI)
@@ -210,7 +210,7 @@ def local_run(videos: Path, weights: Path, tmp_path_factory: pytest.TempPathFact
     out = tmp_path_factory.mktemp("local") / "out"
     proc = enhance(videos, "-o", out, "--weights", weights)
     assert proc.returncode == 0, proc.stderr
-    return _outputs(out)
+    return output_bytes(out)
 
 
 def _errors(stderr: str) -> list[str]:
@@ -227,7 +227,7 @@ def test_batch_on_cluster_is_byte_identical_to_local(
     out = tmp_path / "out"
     proc = enhance(videos, "-o", out, "--weights", weights, "--cluster", cluster.address)
     assert proc.returncode == 0, proc.stderr
-    assert _outputs(out) == local_run
+    assert output_bytes(out) == local_run
     assert not list(out.rglob(f"{MARKER_NAME}*")), "check markers must not be left behind"
     # Both workers took part (each holds the model it loaded once, cached per method spec).
     cached = cluster.client.run(lambda: len(__import__("colonlight.jobs").jobs._METHODS))
@@ -237,7 +237,7 @@ def test_batch_on_cluster_is_byte_identical_to_local(
     proc = enhance(videos, "-o", out, "--weights", weights, "--cluster", cluster.address)
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr.count("(complete)") == 5, proc.stderr
-    assert _outputs(out) == local_run
+    assert output_bytes(out) == local_run
 
 
 def _executing(cluster: LoopbackCluster, address: str) -> list[str]:
@@ -294,7 +294,7 @@ def test_worker_killed_mid_clip_is_retried_elsewhere(
             proc.wait()
     assert proc.returncode == 0, stderr
     assert victim not in cluster.alive()
-    assert _outputs(out) == local_run, f"outputs differ after killing {victim} during {killed_clip}"
+    assert output_bytes(out) == local_run, f"outputs differ after killing {victim} during {killed_clip}"
     assert not list(out.rglob("*.colonlight-tmp*")) and not list(out.rglob(f"{MARKER_NAME}*"))
 
 
@@ -318,7 +318,7 @@ def test_missing_and_broken_clips_fail_as_in_a_local_run(
     strip = [(o.name, o.source, o.status, o.frames, o.error) for o in runs["local"]]
     assert [(o.name, o.source, o.status, o.frames, o.error) for o in runs["remote"]] == strip
     assert [s for _, _, s, _, _ in strip] == ["failed", "done", "failed"]
-    assert _outputs(tmp_path / "remote") == _outputs(tmp_path / "local")
+    assert output_bytes(tmp_path / "remote") == output_bytes(tmp_path / "local")
 
 
 def test_runner_api_and_progress_events(cluster: LoopbackCluster, videos: Path, weights: Path, tmp_path: Path) -> None:
@@ -435,19 +435,19 @@ def test_task_checks_in_process(tmp_path: Path) -> None:
     make_image_folder(src, n=3)
     spec = MethodSpec.of("none")
     job = ClipJob(source=src, name="seq", out_dir=tmp_path / "out" / "seq")
-    o = cluster_task(job, spec, ClipOptions(), False, _TaskCheck(True, True, None, None))
+    o = cluster_task(job, spec, ClipOptions(), False, TaskCheck(True, True, None, None))
     assert o.status == "failed" and "does not see this output folder" in (o.error or "")
 
     job.out_dir.mkdir(parents=True)
-    o = cluster_task(job, spec, ClipOptions(), False, _TaskCheck(True, True, None, None))
+    o = cluster_task(job, spec, ClipOptions(), False, TaskCheck(True, True, None, None))
     assert o.status == "done" and o.frames == 3
 
     gone = ClipJob(source=tmp_path / "gone", name="gone", out_dir=tmp_path / "out" / "gone")
-    o = cluster_task(gone, spec, ClipOptions(), False, _TaskCheck(False, True, None, None))
+    o = cluster_task(gone, spec, ClipOptions(), False, TaskCheck(False, True, None, None))
     assert o.status == "failed" and "not found on worker" in (o.error or "")
 
     model = {"name": "x", "sha256": "0" * 64}
-    o = cluster_task(job, spec, ClipOptions(), False, _TaskCheck(True, True, model, None))
+    o = cluster_task(job, spec, ClipOptions(), False, TaskCheck(True, True, model, None))
     assert o.status == "failed" and "give every worker the same weights" in (o.error or "")
 
     with pytest.raises(ColonlightError, match="not a Dask scheduler address"):
