@@ -62,7 +62,8 @@ def _track(frames: list[np.ndarray], clip: list, cfg: SynthConfig, brightness: s
 
 
 def score(label: str, weights: str | None, clips: list) -> list[str]:  # type: ignore[type-arg]
-    method = create_method("rnn", weights=weights, device="cpu") if weights else None
+    # weights None: the shipped default (the none and clean rows need no method)
+    method = None if label in ("none", "clean") else create_method("rnn", weights=weights, device="cpu")
     psnr_in, psnr_out, fl_out, fl_clean, dark = [], [], [], [], []
     track: dict[str, list[tuple[bool, float]]] = {"fixed": [], "affine": []}
     for over, cfg, clip in clips:
