@@ -102,6 +102,21 @@ Content = typer.Option(
     "them and write border and text pixels unchanged (a frame without either is processed as with full); "
     "full: the whole frame.",
 )
+#: The help of the synthetic clip mix, for ``synth --steady`` and ``train --synthetic-steady`` alike.
+_MIX_HELP = {
+    "steady": "Fraction of synthetic clips with steady lighting (to be left alone).",
+    "occluders": "Fraction of synthetic clips forced to have a close-occluder moment (otherwise each clip has one by "
+    "chance, 35%).",
+    "clean-seeds": "Fraction of synthetic clips whose first two frames are undisturbed.",
+}
+
+
+def clip_mix(kind: str, flag: str, default: float) -> Any:
+    """The option of one share of the synthetic clip mix (``steady``, ``occluders`` or ``clean-seeds``): the
+    same meaning whether ``synth`` renders the clips or ``train`` renders them for itself."""
+    return typer.Option(default, flag, min=0.0, max=1.0, help=_MIX_HELP[kind])
+
+
 Debug = typer.Option(False, "--debug", envvar="COLONLIGHT_DEBUG", help="Show tracebacks of errors.")
 Quiet = typer.Option(
     False, "--quiet", "-q", envvar="COLONLIGHT_QUIET", help="No live display: one line per clip, for logs."

@@ -9,6 +9,7 @@ import typer
 from colonlight.limits import DEFAULT_FPS
 
 from .display import console
+from .options import clip_mix
 
 
 def synth(
@@ -33,6 +34,9 @@ def synth(
     text: bool = typer.Option(
         False, "--text/--no-text", help="Draw fixed on-screen text (patient fields, time, scope settings)."
     ),
+    steady: float = clip_mix("steady", "--steady", 0.0),
+    occluders: float = clip_mix("occluders", "--occluders", 0.0),
+    clean_seeds: float = clip_mix("clean-seeds", "--clean-seeds", 0.0),
 ) -> None:
     """Render synthetic colonoscopy clips: frames/, clean/, depth/, poses.txt (TUM), intrinsics.json, lighting.json."""
     from colonlight.synth import BORDERS, OverlaySpec, make_dataset
@@ -53,6 +57,9 @@ def synth(
         fps=fps,
         workers=workers,
         video=video,
+        steady_fraction=steady,
+        occluder_fraction=occluders,
+        clean_seeds_fraction=clean_seeds,
         overlay=overlay if overlay.active else None,
     )
     for p in paths:

@@ -11,7 +11,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from colonlight.limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE
 
 from .display import console
-from .options import invocation
+from .options import clip_mix, invocation
 
 if TYPE_CHECKING:
     from colonlight import EpochRecord
@@ -92,28 +92,9 @@ def train_cmd(
     synthetic_size: int = typer.Option(
         128, "--synthetic-size", min=32, help="Render size of synthetic clips (then resized to --size)."
     ),
-    synthetic_steady: float = typer.Option(
-        0.25,
-        "--synthetic-steady",
-        min=0.0,
-        max=1.0,
-        help="Fraction of synthetic clips with steady lighting (to be left alone).",
-    ),
-    synthetic_occluders: float = typer.Option(
-        0.0,
-        "--synthetic-occluders",
-        min=0.0,
-        max=1.0,
-        help="Fraction of synthetic clips forced to have a close-occluder moment (otherwise each clip has one by "
-        "chance, 35%).",
-    ),
-    synthetic_clean_seeds: float = typer.Option(
-        0.0,
-        "--synthetic-clean-seeds",
-        min=0.0,
-        max=1.0,
-        help="Fraction of synthetic clips whose first two frames are undisturbed.",
-    ),
+    synthetic_steady: float = clip_mix("steady", "--synthetic-steady", 0.25),
+    synthetic_occluders: float = clip_mix("occluders", "--synthetic-occluders", 0.0),
+    synthetic_clean_seeds: float = clip_mix("clean-seeds", "--synthetic-clean-seeds", 0.0),
     head: str | None = typer.Option(
         None,
         "--head",

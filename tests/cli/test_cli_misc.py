@@ -45,6 +45,31 @@ def test_synth_command_writes_clips_with_ground_truth(tmp_path: Path) -> None:
         assert json.loads((c / "synth.json").read_text())["seed"] in (5, 6)
 
 
+def test_synth_mix_renders_the_clips_train_renders_for_itself(tmp_path: Path) -> None:
+    """``synth --steady/--occluders/--clean-seeds`` draws the mix as ``train --synthetic-*`` does, so a run's
+    extra clips can be rendered ahead by the same command line, frame for frame."""
+    from colonlight.synth import make_dataset
+
+    size = ("--frames", "6", "--width", "48", "--height", "40", "--workers", "1", "--no-video", "--seed", "3")
+    result = runner.invoke(
+        app, ["synth", str(tmp_path / "s"), "-n", "2", *size, "--steady", "1", "--occluders", "1", "--clean-seeds", "1"]
+    )
+    assert result.exit_code == 0, result.output
+    expected = make_dataset(
+        tmp_path / "m", 2, seed=3, width=48, height=40, n_frames=6, workers=1, steady_fraction=1.0,
+        occluder_fraction=1.0, clean_seeds_fraction=1.0,
+    )  # fmt: skip
+    for made in expected:
+        config = json.loads((made / "synth.json").read_text())["config"]
+        assert config["steady"] and config["undisturbed_seeds"] and config["close_occluder"] == "force"
+        rendered = tmp_path / "s" / made.name
+        for png in sorted((made / "frames").glob("*.png")):
+            assert (rendered / "frames" / png.name).read_bytes() == png.read_bytes()
+    plain = runner.invoke(app, ["synth", str(tmp_path / "p"), "-n", "1", *size])
+    assert plain.exit_code == 0, plain.output
+    assert not json.loads((tmp_path / "p" / "clip_00000" / "synth.json").read_text())["config"]["steady"]
+
+
 def test_synth_rejects_bad_split(tmp_path: Path) -> None:
     assert runner.invoke(app, ["synth", str(tmp_path), "--split", "test"]).exit_code == 2
 
