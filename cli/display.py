@@ -105,7 +105,9 @@ class FpsColumn(TextColumn):
 class BatchDisplay:
     """Progress of a batch: one bar for clips, one per running clip for its frames (fps, ETA).
 
-    With ``quiet`` nothing live is drawn: a line per finished clip instead, for logs.
+    With ``quiet`` nothing live is drawn: a line per finished clip instead, for logs. The bars are drawn from the
+    first clip's start or outcome on, so that a batch stopped before any clip (a cluster that cannot be reached)
+    prints its one-line error without an empty bar above it.
     """
 
     def __init__(self, n_clips: int, quiet: bool = False) -> None:
@@ -113,6 +115,7 @@ class BatchDisplay:
         self.progress: Progress | None = None
         self.clip_tasks: dict[str, TaskID] = {}
         self.started = time.perf_counter()
+        self.live = False
         if not quiet:
             self.progress = Progress(
                 TextColumn("{task.description}", justify="left"),
@@ -127,17 +130,22 @@ class BatchDisplay:
             self.overall = self.progress.add_task("[bold]clips", total=n_clips)
 
     def __enter__(self) -> BatchDisplay:
-        if self.progress:
-            self.progress.start()
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        if self.progress:
+        if self.progress and self.live:
             self.progress.stop()
+
+    def _draw(self) -> None:
+        """Start the live bars (once)."""
+        if self.progress and not self.live:
+            self.progress.start()
+            self.live = True
 
     def event(self, event: str, clip: str, data: dict[str, Any]) -> None:
         if not self.progress:
             return
+        self._draw()
         if event == "start":
             self.clip_tasks[clip] = self.progress.add_task(
                 f"  {printable(clip)}", total=data.get("total"), unit="frames"
@@ -149,6 +157,7 @@ class BatchDisplay:
 
     def outcome(self, o: ClipOutcome) -> None:
         if self.progress:
+            self._draw()
             self.progress.advance(self.overall)
         if o.status == "failed":
             self._print(f"[red]failed[/]  {printable(o.error or o.name)}")

@@ -378,6 +378,24 @@ def test_unreachable_scheduler_is_one_line(tmp_path: Path, weights: Path) -> Non
     assert len(lines) == 1 and "cannot reach the Dask scheduler" in lines[0] and str(port) in lines[0], proc.stderr
 
 
+def test_unreachable_scheduler_draws_no_empty_bar(tmp_path: Path, weights: Path) -> None:
+    """Without --quiet the error line is all there is: the bars are drawn from the first clip on, and a batch
+    that cannot reach its cluster has none."""
+    make_image_folder(tmp_path / "seq", n=3)
+    proc = subprocess.run(
+        [*COLONLIGHT, "enhance", str(tmp_path / "seq"), "-o", str(tmp_path / "out"), "--weights", str(weights)]
+        + ["--cluster", "tcp://127.0.0.1:1"],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "COLONLIGHT_CLUSTER_TIMEOUT": "1"},
+    )
+    assert proc.returncode == 1
+    assert "cannot reach the Dask scheduler" in proc.stdout + proc.stderr
+    assert "0/1" not in proc.stdout + proc.stderr, proc.stdout + proc.stderr
+
+
 def _unshare_works() -> bool:
     if not shutil.which("unshare") or os.geteuid() != 0:
         return False
