@@ -43,7 +43,7 @@ def export(
         except OptionError as exc:
             raise typer.BadParameter(str(exc), param_hint="--model-size") from None
         loaded = load_weights(weights)
-        size = parse_model_size(checked, trained_at=loaded.input_size)
+        size = parse_model_size(str(checked), trained_at=loaded.input_size)  # a size option parses to text
         if size is None:
             raise typer.BadParameter(
                 "the graph has a fixed input size: give a number or 'auto'", param_hint="--model-size"

@@ -17,7 +17,8 @@ def info(as_json: bool = typer.Option(False, "--json", help="Machine-readable ou
 
     from colonlight import DEFAULT_WEIGHTS, available_methods, library_versions, load_weights
 
-    record: dict[str, object] = {"versions": library_versions(), "methods": available_methods()}
+    versions, methods = library_versions(), available_methods()
+    record: dict[str, object] = {"versions": versions, "methods": methods}
     try:
         w = load_weights(None)
         record["default_model"] = {"name": w.name, "path": str(w.path), "sha256": w.sha256, "card": w.card}
@@ -31,9 +32,9 @@ def info(as_json: bool = typer.Option(False, "--json", help="Machine-readable ou
     if as_json:
         out.print_json(json.dumps(record))
         return
-    for key, val in record["versions"].items():  # type: ignore[union-attr]
+    for key, val in versions.items():
         out.print(f"{key:>24}: {val}")
-    out.print(f"{'methods':>24}: {', '.join(record['methods'])}")  # type: ignore[arg-type]
+    out.print(f"{'methods':>24}: {', '.join(methods)}")
     dm = record["default_model"]
     assert isinstance(dm, dict)
     if "error" in dm:

@@ -74,7 +74,7 @@ def method_kwargs(ctx: typer.Context, *methods: str) -> dict[str, dict[str, obje
             from_line = getattr(ctx.get_parameter_source(opt.name), "name", None) == "COMMANDLINE"
             (given if from_line else fallback)[opt.name] = ctx.params[opt.name]
     try:
-        return dict(methods_kwargs(methods, given, fallback))
+        return {name: dict(kwargs) for name, kwargs in methods_kwargs(methods, given, fallback).items()}
     except MethodOptionError as exc:
         raise typer.BadParameter(str(exc), param_hint=option(exc.option).flag) from None
 

@@ -29,7 +29,7 @@ def serve(
     if port is not None:
         overrides["port"] = port
     try:
-        settings = Settings(**overrides)  # type: ignore[arg-type]
+        settings = Settings(**overrides)
     except ValidationError as exc:
         for err in exc.errors():
             error_line(f"COLONLIGHT_{'_'.join(str(p) for p in err['loc']).upper()}: {err['msg']}")

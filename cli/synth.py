@@ -40,8 +40,10 @@ def synth(
 ) -> None:
     """Render synthetic colonoscopy clips: frames/, clean/, depth/, poses.txt (TUM), intrinsics.json, lighting.json."""
     from colonlight.synth import BORDERS, OverlaySpec, make_dataset
+    from colonlight.synth.config import Split
 
-    if split not in ("train", "heldout"):
+    families: dict[str, Split] = {"train": "train", "heldout": "heldout"}
+    if split not in families:
         raise typer.BadParameter("choose train or heldout", param_hint="--split")
     if border not in BORDERS:
         raise typer.BadParameter(f"choose one of {', '.join(BORDERS)}", param_hint="--border")
@@ -50,7 +52,7 @@ def synth(
         output,
         clips,
         seed=seed,
-        split=split,
+        split=families[split],
         width=width,
         height=height,
         n_frames=frames,

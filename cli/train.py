@@ -14,6 +14,10 @@ from .display import console
 from .options import clip_mix, invocation
 
 if TYPE_CHECKING:
+    from collections.abc import Iterator
+
+    import numpy as np
+
     from colonlight import EpochRecord
 
 
@@ -279,7 +283,7 @@ def _train_zerodce(
     """Zero-DCE / Zero-DCE++ on every 3rd frame of the clips, without the colour-constancy loss (as the paper did)."""
     from colonlight import clip_frames, train_zerodce
 
-    def frames():  # type: ignore[no-untyped-def]
+    def frames() -> Iterator[np.ndarray]:
         for clip in clips:
             for f in clip_frames(clip, fps=fps or None):
                 if f.index % 3 == 0:
