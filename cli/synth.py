@@ -39,8 +39,7 @@ def synth(
     clean_seeds: float = clip_mix("clean-seeds", "--clean-seeds", 0.0),
 ) -> None:
     """Render synthetic colonoscopy clips: frames/, clean/, depth/, poses.txt (TUM), intrinsics.json, lighting.json."""
-    from colonlight.synth import BORDERS, OverlaySpec, make_dataset
-    from colonlight.synth.config import Split
+    from colonlight.synth import BORDERS, OverlaySpec, Split, make_dataset
 
     families: dict[str, Split] = {"train": "train", "heldout": "heldout"}
     if split not in families:

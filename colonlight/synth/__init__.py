@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from ..discovery import SYNTH_FRAMES, SYNTH_VIDEO
 from .clip import SynthFrame, build_scene, generate_clip, render_frame
-from .config import PARAM_SPECS, SynthConfig
+from .config import PARAM_SPECS, Split, SynthConfig
 from .overlay import BORDERS, OverlaySpec
 from .writer import GENERATOR_VERSION, decode_depth, encode_depth, make_dataset, write_clip
 
@@ -28,6 +28,7 @@ __all__ = [
     "PARAM_SPECS",
     "SYNTH_FRAMES",
     "SYNTH_VIDEO",
+    "Split",
     "SynthConfig",
     "SynthFrame",
     "build_scene",
