@@ -115,7 +115,6 @@ class BatchDisplay:
         self.progress: Progress | None = None
         self.clip_tasks: dict[str, TaskID] = {}
         self.started = time.perf_counter()
-        self.live = False
         if not quiet:
             self.progress = Progress(
                 TextColumn("{task.description}", justify="left"),
@@ -133,19 +132,13 @@ class BatchDisplay:
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        if self.progress and self.live:
+        if self.progress and self.progress.live.is_started:  # stop() of bars never drawn would print a blank line
             self.progress.stop()
-
-    def _draw(self) -> None:
-        """Start the live bars (once)."""
-        if self.progress and not self.live:
-            self.progress.start()
-            self.live = True
 
     def event(self, event: str, clip: str, data: dict[str, Any]) -> None:
         if not self.progress:
             return
-        self._draw()
+        self.progress.start()  # from the first event on; later calls do nothing
         if event == "start":
             self.clip_tasks[clip] = self.progress.add_task(
                 f"  {printable(clip)}", total=data.get("total"), unit="frames"
@@ -157,7 +150,7 @@ class BatchDisplay:
 
     def outcome(self, o: ClipOutcome) -> None:
         if self.progress:
-            self._draw()
+            self.progress.start()
             self.progress.advance(self.overall)
         if o.status == "failed":
             self._print(f"[red]failed[/]  {printable(o.error or o.name)}")

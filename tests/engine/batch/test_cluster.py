@@ -193,9 +193,11 @@ def videos(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
-def enhance(*args: object, env: dict[str, str] | None = None, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+def enhance(
+    *args: object, env: dict[str, str] | None = None, timeout: float = 120, quiet: bool = True
+) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [*COLONLIGHT, "enhance", *map(str, args), "--quiet"],
+        [*COLONLIGHT, "enhance", *map(str, args), *(["--quiet"] if quiet else [])],
         check=False,
         capture_output=True,
         text=True,
@@ -382,14 +384,16 @@ def test_unreachable_scheduler_draws_no_empty_bar(tmp_path: Path, weights: Path)
     """Without --quiet the error line is all there is: the bars are drawn from the first clip on, and a batch
     that cannot reach its cluster has none."""
     make_image_folder(tmp_path / "seq", n=3)
-    proc = subprocess.run(
-        [*COLONLIGHT, "enhance", str(tmp_path / "seq"), "-o", str(tmp_path / "out"), "--weights", str(weights)]
-        + ["--cluster", "tcp://127.0.0.1:1"],
-        check=False,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env={**os.environ, "COLONLIGHT_CLUSTER_TIMEOUT": "1"},
+    proc = enhance(
+        tmp_path / "seq",
+        "-o",
+        tmp_path / "out",
+        "--weights",
+        weights,
+        "--cluster",
+        "tcp://127.0.0.1:1",
+        env={"COLONLIGHT_CLUSTER_TIMEOUT": "1"},
+        quiet=False,
     )
     assert proc.returncode == 1
     assert "cannot reach the Dask scheduler" in proc.stdout + proc.stderr
