@@ -123,6 +123,14 @@ def train_cmd(
         help="Weight of the restoration error's frame-to-frame change (--objective restore|relative|hybrid): the "
         "output flickers no more than the clean frames.",
     ),
+    exposure_jitter: float = typer.Option(
+        0.0,
+        "--exposure-jitter",
+        min=0.0,
+        help="With --objective relative: pass each window, frames and targets alike, through a random exposure "
+        "change (|log gain| up to this, |log gamma| up to half), so absolute brightness stops being a cue: "
+        "correctly lit bright or dark video is left alone.",
+    ),
     method: str = typer.Option("rnn", "--method", help="rnn (the paper's model) | zerodce | zerodce++ (baselines)."),
     size: int = typer.Option(
         DEFAULT_MODEL_SIZE,
@@ -231,6 +239,7 @@ def train_cmd(
             objective=objective,
             consistency=consistency,
             temporal=temporal,
+            exposure_jitter=exposure_jitter,
         )
     except OptionError as exc:
         raise typer.BadParameter(str(exc)) from None

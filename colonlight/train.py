@@ -64,12 +64,17 @@ class TrainConfig:
     objective: str = "paper"  # "paper" (unsupervised) | "restore" (to clean frames) | "relative" | "hybrid"
     consistency: float = 0.5  # weight of the paper's loss inside "hybrid"
     temporal: float = 0.0  # weight of the error's frame-to-frame change inside the supervised objectives
+    exposure_jitter: float = 0.0  # span of the window-constant exposure change of "relative" (0: none)
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
             raise OptionError(f"objective must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}")
         if self.head not in HEAD_OUTPUTS:
             raise OptionError(f"head must be one of {', '.join(HEAD_OUTPUTS)}, got {self.head!r}")
+        if self.exposure_jitter < 0 or not math.isfinite(self.exposure_jitter):
+            raise OptionError(f"exposure jitter must be finite and >= 0, got {self.exposure_jitter!r}")
+        if self.exposure_jitter and self.objective != "relative":
+            raise OptionError("exposure jitter needs --objective relative (its targets change with the input)")
 
     @property
     def supervised(self) -> bool:
@@ -331,13 +336,35 @@ def corrected_sequence_loss(
     return torch.stack(losses).mean()
 
 
-def batch_loss(net: GammaNet, data: SequenceSet, ids: Sequence[int], cfg: TrainConfig, anchor: float) -> torch.Tensor:
-    """The configured objective on one batch of windows."""
+def exposure_changes(n: int, span: float, rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """``n`` random ``(gain, gamma)`` pairs: ``log gain`` uniform in ``[-span, span]``, ``log gamma`` in half that."""
+    log_gain = rng.uniform(-span, span, n)
+    log_gamma = rng.uniform(-span / 2, span / 2, n)
+    return torch.from_numpy(np.exp(log_gain)).float(), torch.from_numpy(np.exp(log_gamma)).float()
+
+
+def batch_loss(
+    net: GammaNet,
+    data: SequenceSet,
+    ids: Sequence[int],
+    cfg: TrainConfig,
+    anchor: float,
+    exposure: tuple[torch.Tensor, torch.Tensor] | None = None,
+) -> torch.Tensor:
+    """The configured objective on one batch of windows.
+
+    ``exposure``: per-window ``(gain, gamma)`` applied to a window's frames and to its relative targets alike
+    (``min(1, gain * I ** gamma)``). The targets are relative to the window's first frame, so the right correction
+    does not change, while the window's absolute brightness no longer tells the model what correction it needs:
+    a model that learned "bright frames are over-exposed" darkens correctly lit bright video (the gate's steady
+    clips), and this takes that cue away."""
     x = data.batch(ids)
+    clean = data.clean_batch(ids) if cfg.supervised else None
+    if exposure is not None and clean is not None:
+        x, clean = (apply_gain_gamma(v, exposure[0][:, None], exposure[1][:, None]) for v in (x, clean))
     out = net(x)
-    if cfg.objective == "paper":
+    if cfg.objective == "paper" or clean is None:
         return paper_loss_any_head(x, out, cfg.head, cfg.ssim_window, anchor)
-    clean = data.clean_batch(ids)
     corrected = apply_head(x, out, cfg.head)  # once for both terms
     loss = restore_loss(x, clean, out, cfg.head, corrected)
     if cfg.temporal:
@@ -433,6 +460,11 @@ def objective_text(cfg: TrainConfig) -> str:
             "clean as the window's first frame shows it (clean frames through the tone change of the "
             "first frame, by histogram matching)",
             1,
+        ) + (
+            f"; each window's frames and targets alike through a random exposure change min(1, g * I ** k), "
+            f"|log g| <= {cfg.exposure_jitter}, |log k| <= {cfg.exposure_jitter / 2}"
+            if cfg.exposure_jitter
+            else ""
         )
     return f"{restore}; plus {cfg.consistency} x the paper's loss ({paper})"
 
@@ -487,7 +519,11 @@ def train_model(
         total = 0.0
         for step in range(steps):
             ids = order[step * cfg.batch : (step + 1) * cfg.batch].tolist()
-            loss = batch_loss(net, train_set, ids, cfg, cfg.anchor)
+            exposure = None
+            if cfg.exposure_jitter:
+                rng = np.random.default_rng([cfg.seed, epoch, step])
+                exposure = exposure_changes(len(ids), cfg.exposure_jitter, rng)
+            loss = batch_loss(net, train_set, ids, cfg, cfg.anchor, exposure)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()

@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+import torch
 
+from colonlight.correction import LOG_GAIN_SPAN
 from colonlight.curves import gain_gamma_lut
-from colonlight.train import SequenceSet, TrainConfig, start_curve, train_model
+from colonlight.model import GammaNet
+from colonlight.train import SequenceSet, TrainConfig, batch_loss, exposure_changes, start_curve, train_model
 
 
 def _scene(rng: np.random.Generator, size: int = 32) -> np.ndarray:
@@ -76,3 +80,34 @@ def test_training_with_the_relative_objective_learns_and_records_it(tmp_path: Pa
 def test_relative_targets_need_clean_frames() -> None:
     with pytest.raises(ValueError, match="clean"):
         SequenceSet([np.zeros((4, 8, 8, 3), np.uint8)], 2, 1, relative=True)
+
+
+def test_exposure_jitter_is_only_for_the_relative_objective_and_bounded() -> None:
+    from colonlight.errors import OptionError
+
+    with pytest.raises(OptionError, match="relative"):
+        TrainConfig(objective="restore", exposure_jitter=0.5)
+    with pytest.raises(OptionError, match=">= 0"):
+        TrainConfig(objective="relative", exposure_jitter=-0.1)
+    gain, gamma = exposure_changes(1000, 0.5, np.random.default_rng(0))
+    assert gain.log().abs().max() <= 0.5 and gamma.log().abs().max() <= 0.25
+    assert gain.log().abs().max() > 0.45 and gamma.log().abs().max() > 0.2  # the span is used, not a corner of it
+    again = exposure_changes(1000, 0.5, np.random.default_rng(0))
+    assert torch.equal(gain, again[0]) and torch.equal(gamma, again[1])
+
+
+def test_an_exposure_change_moves_a_windows_targets_with_its_frames() -> None:
+    """On a steady window (its own target), the identity correction stays exact under any exposure change, and a
+    correction that undoes the change (what a model keyed to absolute brightness learns) is penalised."""
+    rng = np.random.default_rng(3)
+    scene = _scene(rng, 40)
+    clean = np.stack([scene[i : i + 32, i : i + 32].transpose(2, 0, 1) for i in range(6)])  # (T, 3, H, W)
+    data = SequenceSet([clean], 6, 6, [clean], relative=True)
+    cfg = TrainConfig(size=32, seq_len=6, stride=6, head="gain-gamma", objective="relative")
+    identity = GammaNet(head="gain-gamma").eval()  # zero output layer: gain 1, gamma 1
+    darken = (torch.tensor([1.0 / 1.5]), torch.tensor([1.0]))
+    with torch.no_grad():
+        assert float(batch_loss(identity, data, [0], cfg, 0.0, darken)) < 1e-3  # start_curve interpolates
+        undo = GammaNet(head="gain-gamma").eval()
+        undo.out_linear.bias.copy_(torch.tensor([0.0, math.atanh(math.log(1.5) / LOG_GAIN_SPAN)]))
+        assert float(batch_loss(undo, data, [0], cfg, 0.0, darken)) > 0.05
