@@ -5,7 +5,8 @@ tracked fraction with per-frame brightness fixed (the paper's RNNSLAM setting) a
 size training never used (160x128). The first clip of every four is steady (scored only for darkening); the others
 start with two undisturbed frames.
 
-Run: ``python -m benchmarks model_validation [--clips 8] [--weights W ...]`` (``none`` and ``clean`` always).
+Run: ``python -m benchmarks model_validation [--clips 8] [--weights W ...] [--methods he,clahe]`` (``none`` and
+``clean`` always; ``--methods`` adds built-in baselines, to see whether a candidate is ahead of them).
 """
 
 from __future__ import annotations
@@ -61,9 +62,12 @@ def _track(frames: list[np.ndarray], clip: list, cfg: SynthConfig, brightness: s
     return bool(r.success), float(np.mean(r.frame_ok[1:]))
 
 
-def score(label: str, weights: str | None, clips: list) -> list[str]:  # type: ignore[type-arg]
-    # weights None: the shipped default (the none and clean rows need no method)
-    method = None if label in ("none", "clean") else create_method("rnn", weights=weights, device="cpu")
+def score(label: str, weights: str | None, clips: list, baseline: str | None = None) -> list[str]:  # type: ignore[type-arg]
+    # weights None: the shipped default (the none and clean rows need no method); baseline: a built-in method
+    if baseline is not None:
+        method = create_method(baseline)
+    else:
+        method = None if label in ("none", "clean") else create_method("rnn", weights=weights, device="cpu")
     psnr_in, psnr_out, fl_out, fl_clean, dark = [], [], [], [], []
     track: dict[str, list[tuple[bool, float]]] = {"fixed": [], "affine": []}
     for over, cfg, clip in clips:
@@ -104,9 +108,14 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument(
         "--no-references", action="store_true", help="skip the none and clean rows (they do not change between runs)"
     )
+    parser.add_argument(
+        "--methods", default="", help="built-in baselines to score too, comma-separated (e.g. he,clahe)"
+    )
     args = parser.parse_args(argv or [])
     clips = validation_clips(args.clips)
     rows = [] if args.no_references else [score("none", None, clips), score("clean", None, clips)]
+    for name in filter(None, args.methods.split(",")):
+        rows.append(score(name, None, clips, baseline=name))
     for w in args.weights or [None]:
         rows.append(score(w or "rnn (shipped)", w or None, clips))
     return "\n".join(

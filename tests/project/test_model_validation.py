@@ -19,3 +19,5 @@ def test_validation_scores_the_shipped_default_without_weights() -> None:
     assert shipped[0] == "rnn (shipped)" and len(shipped) == len(none) == 6
     psnr_in, psnr_out = (float(v) for v in shipped[1].split(" -> "))
     assert psnr_in == float(none[1].split(" -> ")[0]) and psnr_out != psnr_in  # the model ran and changed the frames
+    he = score("he", None, clips, baseline="he")
+    assert he[0] == "he" and he[1] != shipped[1] and he[1].split(" -> ")[0] == none[1].split(" -> ")[0]
