@@ -128,8 +128,8 @@ def train_cmd(
         "--exposure-jitter",
         min=0.0,
         help="With --objective relative: pass each window, frames and targets alike, through a random exposure "
-        "change (|log gain| up to this, |log gamma| up to half), so absolute brightness stops being a cue: "
-        "correctly lit bright or dark video is left alone.",
+        "change (|log gain| up to this, |log gamma| up to half), so that absolute brightness stops being a cue "
+        "for the correction. An experiment: it did not keep steady clips from being darkened (README).",
     ),
     method: str = typer.Option("rnn", "--method", help="rnn (the paper's model) | zerodce | zerodce++ (baselines)."),
     size: int = typer.Option(
