@@ -363,7 +363,7 @@ def batch_loss(
     if exposure is not None and clean is not None:
         x, clean = (apply_gain_gamma(v, exposure[0][:, None], exposure[1][:, None]) for v in (x, clean))
     out = net(x)
-    if cfg.objective == "paper" or clean is None:
+    if clean is None:  # the paper's objective, the one that needs no clean frames
         return paper_loss_any_head(x, out, cfg.head, cfg.ssim_window, anchor)
     corrected = apply_head(x, out, cfg.head)  # once for both terms
     loss = restore_loss(x, clean, out, cfg.head, corrected)

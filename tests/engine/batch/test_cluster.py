@@ -356,14 +356,16 @@ def test_runner_api_and_progress_events(cluster: LoopbackCluster, videos: Path, 
 # ------------------------------------------------------------------------------------------------ failures
 
 
-def test_unreachable_scheduler_is_one_line(tmp_path: Path, weights: Path) -> None:
-    make_image_folder(tmp_path / "seq", n=3)
+def _enhance_on_unreachable_cluster(
+    tmp_path: Path, weights: Path, quiet: bool = True
+) -> tuple[subprocess.CompletedProcess[str], int]:
+    """``enhance --cluster`` of a 3-frame folder at a loopback port that nothing listens on -> (run, port)."""
     import socket
 
-    with socket.socket() as s:  # a loopback port that nothing listens on
+    make_image_folder(tmp_path / "seq", n=3)
+    with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    t0 = time.monotonic()
     proc = enhance(
         tmp_path / "seq",
         "-o",
@@ -373,7 +375,14 @@ def test_unreachable_scheduler_is_one_line(tmp_path: Path, weights: Path) -> Non
         "--cluster",
         f"tcp://127.0.0.1:{port}",
         env={"COLONLIGHT_CLUSTER_TIMEOUT": "1"},
+        quiet=quiet,
     )
+    return proc, port
+
+
+def test_unreachable_scheduler_is_one_line(tmp_path: Path, weights: Path) -> None:
+    t0 = time.monotonic()
+    proc, port = _enhance_on_unreachable_cluster(tmp_path, weights)
     assert proc.returncode == 1
     assert time.monotonic() - t0 < 30
     lines = _errors(proc.stderr)
@@ -383,18 +392,7 @@ def test_unreachable_scheduler_is_one_line(tmp_path: Path, weights: Path) -> Non
 def test_unreachable_scheduler_draws_no_empty_bar(tmp_path: Path, weights: Path) -> None:
     """Without --quiet the error line is all there is: the bars are drawn from the first clip on, and a batch
     that cannot reach its cluster has none."""
-    make_image_folder(tmp_path / "seq", n=3)
-    proc = enhance(
-        tmp_path / "seq",
-        "-o",
-        tmp_path / "out",
-        "--weights",
-        weights,
-        "--cluster",
-        "tcp://127.0.0.1:1",
-        env={"COLONLIGHT_CLUSTER_TIMEOUT": "1"},
-        quiet=False,
-    )
+    proc, _ = _enhance_on_unreachable_cluster(tmp_path, weights, quiet=False)
     assert proc.returncode == 1
     assert "cannot reach the Dask scheduler" in proc.stdout + proc.stderr
     assert "0/1" not in proc.stdout + proc.stderr, proc.stdout + proc.stderr
