@@ -231,8 +231,12 @@ def evaluate(
 
     names = _method_names(methods)
     options.check_fps(fps)
-    if family not in ("train", "heldout"):
-        raise typer.BadParameter("choose train or heldout", param_hint="--family")
+    from colonlight.synth import SPLITS, parse_split
+
+    try:
+        split = parse_split(family)
+    except ValueError:
+        raise typer.BadParameter(f"choose {' or '.join(SPLITS)}", param_hint="--family") from None
     if brightness not in ("fixed", "affine", "both"):
         raise typer.BadParameter("choose fixed, affine or both", param_hint="--brightness")
     try:
@@ -279,7 +283,7 @@ def evaluate(
             size,
             workers=workers,
             on_clip=rendered,
-            family=family,  # type: ignore[arg-type]
+            family=split,
         )
     if not refs:
         error_line("no clips found in " + ", ".join(str(p) for p in inputs or []))

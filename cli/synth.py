@@ -39,11 +39,12 @@ def synth(
     clean_seeds: float = clip_mix("clean-seeds", "--clean-seeds", 0.0),
 ) -> None:
     """Render synthetic colonoscopy clips: frames/, clean/, depth/, poses.txt (TUM), intrinsics.json, lighting.json."""
-    from colonlight.synth import BORDERS, OverlaySpec, Split, make_dataset
+    from colonlight.synth import BORDERS, SPLITS, OverlaySpec, make_dataset, parse_split
 
-    families: dict[str, Split] = {"train": "train", "heldout": "heldout"}
-    if split not in families:
-        raise typer.BadParameter("choose train or heldout", param_hint="--split")
+    try:
+        family = parse_split(split)
+    except ValueError:
+        raise typer.BadParameter(f"choose {' or '.join(SPLITS)}", param_hint="--split") from None
     if border not in BORDERS:
         raise typer.BadParameter(f"choose one of {', '.join(BORDERS)}", param_hint="--border")
     overlay = OverlaySpec(border=border, fov=fov, text=text)  # type: ignore[arg-type]
@@ -51,7 +52,7 @@ def synth(
         output,
         clips,
         seed=seed,
-        split=families[split],
+        split=family,
         width=width,
         height=height,
         n_frames=frames,

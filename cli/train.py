@@ -10,7 +10,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from colonlight.limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE
 
-from .display import console
+from .display import console, error_line
 from .options import clip_mix, invocation
 
 if TYPE_CHECKING:
@@ -67,17 +67,19 @@ def _clips(paths: list[Path]) -> list[Path]:
     return clips
 
 
-def _init_head(init: str | None) -> str:
-    """The head a run keeps when ``--head`` is not given: the starting checkpoint's (fine-tuning the shipped
-    gain-gamma model keeps its head and output layer), else the paper's one gamma."""
+def _init_design(init: str | None) -> tuple[str, str]:
+    """The head and input a run keeps when ``--head`` / ``--inputs`` are not given: the starting checkpoint's
+    (fine-tuning the shipped gain-gamma model keeps its head and output layer), else the paper's (one gamma,
+    from RGB)."""
     if not init:
-        return "gamma"
+        return "gamma", "rgb"
     from colonlight import CheckpointError, load_weights
 
     try:
-        return load_weights(init).net.head
+        net = load_weights(init).net
     except CheckpointError as exc:
         raise typer.BadParameter(str(exc), param_hint="--init") from None
+    return net.head, net.inputs
 
 
 def train_cmd(
@@ -131,6 +133,15 @@ def train_cmd(
         "change (|log gain| up to this, |log gamma| up to half), so that absolute brightness stops being a cue "
         "for the correction. An experiment: it did not keep steady clips from being darkened (README).",
     ),
+    inputs: str | None = typer.Option(
+        None,
+        "--inputs",
+        help="rgb (the paper's) | rgb-log (the frame and its log intensity, in which a gain change is the same "
+        "shift everywhere) | rgb-prev (the frame and the frame under the last frame's correction; gain-gamma and "
+        "curve heads). Default: the --init checkpoint's, else rgb; an rgb checkpoint starts the others with zero "
+        "weights on the extra channels.",
+        show_default=False,
+    ),
     method: str = typer.Option("rnn", "--method", help="rnn (the paper's model) | zerodce | zerodce++ (baselines)."),
     size: int = typer.Option(
         DEFAULT_MODEL_SIZE,
@@ -156,15 +167,28 @@ def train_cmd(
     name: str = typer.Option("colonlight-rnn", "--name", help="Name of the weights file and card."),
     resume: bool = typer.Option(True, "--resume/--no-resume", help="Continue from the last epoch saved in OUTPUT."),
     fps: float = typer.Option(DEFAULT_FPS, "--fps", help="Extraction rate for video clips (0: every frame)."),
+    export_epoch: int | None = typer.Option(
+        None,
+        "--export-epoch",
+        min=1,
+        help="Train nothing: write the weights and card of epoch N of the run in OUTPUT (from the state saved "
+        "after it) as OUTPUT/NAME-epochNNN.safetensors, for a model chosen on validation clips before the last "
+        "epoch. Every other option is ignored: the card is the run's own.",
+        show_default=False,
+    ),
 ) -> None:
     """Train a model; writes OUTPUT/NAME.safetensors and its model card OUTPUT/NAME.json."""
+    if export_epoch is not None:
+        _export_epoch(output, export_epoch)
+        return
     command = invocation(ctx)
     if method == "rnn" and init == "default":
         from colonlight import DEFAULT_WEIGHTS
 
         init = str(DEFAULT_WEIGHTS)
-    if method == "rnn" and head is None:
-        head = _init_head(init)
+    if method == "rnn" and (head is None or inputs is None):
+        init_head, init_inputs = _init_design(init)
+        head, inputs = head or init_head, inputs or init_inputs
     train_clips = _clips(list(data or []))
     val_clips = _clips(list(val or []))
     extra: dict[str, object] = {"command": command}
@@ -240,6 +264,7 @@ def train_cmd(
             consistency=consistency,
             temporal=temporal,
             exposure_jitter=exposure_jitter,
+            inputs=inputs or "rgb",
         )
     except OptionError as exc:
         raise typer.BadParameter(str(exc)) from None
@@ -273,6 +298,18 @@ def train_cmd(
             on_step=on_step,
             on_epoch=on_epoch,
         )
+    console.print(f"weights: {result.weights}\ncard:    {result.weights.with_suffix('.json')}")
+
+
+def _export_epoch(run_dir: Path, epoch: int) -> None:
+    """``--export-epoch``: one epoch of a run as weights, or a one-line error (exit 1)."""
+    from colonlight import InputError, export_epoch
+
+    try:
+        result = export_epoch(run_dir, epoch)
+    except InputError as exc:
+        error_line(str(exc))
+        raise typer.Exit(1) from None
     console.print(f"weights: {result.weights}\ncard:    {result.weights.with_suffix('.json')}")
 
 

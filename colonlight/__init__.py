@@ -79,6 +79,7 @@ _EXPORTS: dict[str, str] = {
     "EpochRecord": "train",
     "TrainConfig": "train",
     "TrainResult": "train",
+    "export_epoch": "train",
     "train_model": "train",
     "network_threads": "tuning",
     "reuse_frame_memory": "tuning",
@@ -109,7 +110,7 @@ if TYPE_CHECKING:
     from .slam_layout import read_camera
     from .sources import clip_frames
     from .streaming import enhance_frames
-    from .train import EpochRecord, TrainConfig, TrainResult, train_model
+    from .train import EpochRecord, TrainConfig, TrainResult, export_epoch, train_model
     from .tuning import network_threads, reuse_frame_memory, tune_for_clips
     from .video import VideoInfo, probe_video
 
@@ -189,6 +190,7 @@ __all__ = [
     "run_clip",
     "save_weights",
     "synthetic_folder_of",
+    "export_epoch",
     "train_model",
     "train_zerodce",
     "tune_for_clips",

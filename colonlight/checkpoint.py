@@ -23,7 +23,7 @@ from safetensors.torch import load_file, save_file
 
 from .atomic import atomic_path, write_json_atomic
 from .errors import CheckpointError
-from .model import HEAD_OUTPUTS, GammaNet
+from .model import HEAD_OUTPUTS, INPUT_CHANNELS, GammaNet
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
 DEFAULT_WEIGHTS = WEIGHTS_DIR / "colonlight-rnn.safetensors"
@@ -114,8 +114,31 @@ def _head_of(state: dict[str, torch.Tensor], card: dict[str, Any], path: Path) -
     return head
 
 
-def _net_from_state_dict(state: dict[str, torch.Tensor], path: Path, head: str = "gamma") -> GammaNet:
-    net = GammaNet(head=head)
+def _inputs_of(state: dict[str, torch.Tensor], card: dict[str, Any], path: Path) -> str:
+    """The input the weights read (``model.INPUT_CHANNELS``): the card's, checked against the first convolution's
+    shape; without a card, the one input with that many channels (3: ``rgb``, the paper's)."""
+    weight = state.get("in_cnv.weight")
+    channels = int(weight.shape[1]) if isinstance(weight, torch.Tensor) and weight.ndim == 4 else 3
+    fits = [name for name, n in INPUT_CHANNELS.items() if n == channels]
+    if not fits:
+        raise CheckpointError(f"{path}: first convolution reads {channels} channels; no input has that many")
+    said = card.get("inputs")
+    if said is None:
+        if len(fits) > 1:
+            raise CheckpointError(
+                f"{path}: first convolution reads {channels} channels, which could be {' or '.join(fits)}; "
+                "its model card must say which (inputs)"
+            )
+        return fits[0]
+    if said not in fits:
+        raise CheckpointError(f"{path}: model card says inputs {said!r}, the weights read {channels} channels")
+    return str(said)
+
+
+def _net_from_state_dict(
+    state: dict[str, torch.Tensor], path: Path, head: str = "gamma", inputs: str = "rgb"
+) -> GammaNet:
+    net = GammaNet(head=head, inputs=inputs)
     expected = set(net.state_dict())
     missing = sorted(expected - set(state))
     unexpected = sorted(set(state) - expected)
@@ -155,7 +178,7 @@ def load_weights(path: Path | str | None = None) -> LoadedWeights:
         name = path.stem
     # BatchNorm's step counter is bookkeeping for training only; older saves may lack it.
     state.setdefault("bn.num_batches_tracked", torch.tensor(0, dtype=torch.long))
-    net = _net_from_state_dict(state, path, _head_of(state, card, path))
+    net = _net_from_state_dict(state, path, _head_of(state, card, path), _inputs_of(state, card, path))
     return LoadedWeights(net=net, name=name, sha256=digest, path=path, card=card)
 
 

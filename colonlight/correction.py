@@ -31,6 +31,26 @@ LOG_GAMMA_SPAN = 2.0
 LOG_GAIN_SPAN = 1.2
 
 
+def correct(frames: Tensor, a: Tensor, eps: float = 1e-6) -> Tensor:
+    """The gamma head's differentiable correction ``I ** (1/a)``; ``a`` broadcasts over ``(..., 3, H, W)``.
+
+    ``a`` is floored at ``eps`` and the base at ``eps`` so that gradients stay finite.
+    """
+    gamma = 1.0 / a.clamp_min(eps)
+    return frames.clamp_min(eps) ** per_frame(gamma, frames)
+
+
+def apply_head(frames: Tensor, out: Tensor, head: str) -> Tensor:
+    """Frames corrected by a head's raw outputs (``(...)`` for ``gamma``, ``(..., K)`` for the others), with
+    ``frames`` ``(..., 3, H, W)``; differentiable."""
+    if head == "gamma":
+        return correct(frames, out)
+    if head == "curve":
+        return apply_curve(frames, curve_slopes_from_raw(out))
+    gain, gamma = gain_gamma_from_raw(out)
+    return apply_gain_gamma(frames, gain, gamma)
+
+
 def gain_gamma_from_raw(z: Tensor) -> tuple[Tensor, Tensor]:
     """``(..., 2)`` raw head outputs -> ``(gain, gamma)``, each ``(...)``; differentiable."""
     gamma = torch.exp(LOG_GAMMA_SPAN * torch.tanh(z[..., 0]))

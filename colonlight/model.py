@@ -12,23 +12,48 @@ Two heads share that backbone (see :mod:`colonlight.correction` for what their o
   the correction ``gain * I ** gamma`` can undo a gain jump and a tone-curve change at once, which one gamma
   cannot;
 * ``curve``: ``linear(32->8)``, the slopes of a monotone tone curve per frame (``correction``).
+
+Three inputs (``INPUT_CHANNELS``), the first convolution's only difference:
+
+* ``rgb`` (the paper's, every shipped model so far);
+* ``rgb-log``: the frame beside its log intensity scaled to [0, 1] (``log_channels``). In log space a gain change
+  is the same shift at every pixel and a gamma change a scale, whereas a scene that brightens (a wall coming
+  near) shifts some pixels more than others: the first convolution sees that difference directly instead of
+  having to build a logarithm from ReLUs;
+* ``rgb-prev``: the frame beside the same frame corrected by the previous frame's outputs (identity before the
+  first), which the state then carries as a third tensor. Consistent lighting means the last correction still
+  fits unless the camera changed; this shows the network what keeping it would give, rather than leaving it to
+  infer its own last output from its memory. ``gain-gamma`` and ``curve`` heads only (their zero output is the
+  identity; the gamma head's is not a correction).
 """
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor, nn
 
-from .correction import CURVE_SEGMENTS
+from .correction import CURVE_SEGMENTS, apply_head
 from .errors import OptionError
 
 HIDDEN = 32
 BN_MOMENTUM = 0.01
 FORGET_BIAS = 1.0
 
-State = tuple[Tensor, Tensor]
+#: ``(h, c)`` of the ConvLSTM; ``rgb-prev`` networks add the previous frame's head outputs.
+State = tuple[Tensor, ...]
 #: Head name -> number of outputs of ``out_linear``.
 HEAD_OUTPUTS = {"gamma": 1, "gain-gamma": 2, "curve": CURVE_SEGMENTS}
+#: Input name -> channels ``in_cnv`` reads.
+INPUT_CHANNELS = {"rgb": 3, "rgb-log": 6, "rgb-prev": 6}
+#: The darkest level the log channels tell apart (one 8-bit step); darker samples read as it.
+LOG_FLOOR = 1.0 / 255.0
+
+
+def log_channels(frame: Tensor) -> Tensor:
+    """``log(I)`` mapped so that ``LOG_FLOOR -> 0`` and ``1 -> 1`` (same shape as ``frame``)."""
+    return 1.0 - torch.log(frame.clamp_min(LOG_FLOOR)) / math.log(LOG_FLOOR)
 
 
 class ConvLSTMCell(nn.Module):
@@ -39,7 +64,7 @@ class ConvLSTMCell(nn.Module):
         self.hidden = hidden
         self.conv = nn.Conv2d(in_channels + hidden, 4 * hidden, kernel, padding=kernel // 2)
 
-    def forward(self, x: Tensor, state: State | None) -> State:
+    def forward(self, x: Tensor, state: tuple[Tensor, Tensor] | None) -> tuple[Tensor, Tensor]:
         """One step. ``x``: ``(B, C, H, W)``; ``state``: ``(h, c)`` or ``None`` (zeros) -> new ``(h, c)``."""
         if state is None:
             zeros = x.new_zeros(x.shape[0], self.hidden, x.shape[2], x.shape[3])
@@ -62,12 +87,17 @@ class GammaNet(nn.Module):
             a, state = net.step(frame, state)
     """
 
-    def __init__(self, hidden: int = HIDDEN, head: str = "gamma") -> None:
+    def __init__(self, hidden: int = HIDDEN, head: str = "gamma", inputs: str = "rgb") -> None:
         super().__init__()
         if head not in HEAD_OUTPUTS:
             raise OptionError(f"unknown head {head!r}; choose from {', '.join(HEAD_OUTPUTS)}")
+        if inputs not in INPUT_CHANNELS:
+            raise OptionError(f"unknown inputs {inputs!r}; choose from {', '.join(INPUT_CHANNELS)}")
+        if inputs == "rgb-prev" and head == "gamma":
+            raise OptionError("inputs 'rgb-prev' needs the gain-gamma or curve head (zero outputs are their identity)")
         self.head = head
-        self.in_cnv = nn.Conv2d(3, hidden, 3, padding=1)
+        self.inputs = inputs
+        self.in_cnv = nn.Conv2d(INPUT_CHANNELS[inputs], hidden, 3, padding=1)
         self.bn = nn.BatchNorm2d(hidden, momentum=BN_MOMENTUM)
         self.RNNcell = ConvLSTMCell(hidden, hidden, 3)  # noqa: N815 - the release's key name
         self.rnn_cnv = nn.Conv2d(hidden, hidden, 3, padding=1)
@@ -97,13 +127,21 @@ class GammaNet(nn.Module):
 
         Head ``gamma``: ``a`` of shape ``(B,)`` (gamma ``1/a``); ``gain-gamma``: raw ``(B, 2)`` outputs.
         """
-        x = torch.relu(self.bn(self.in_cnv(frame)))
-        state = self.RNNcell(x, state)
-        x = torch.relu(self.rnn_cnv(state[0]))
+        cell = (state[0], state[1]) if state is not None else None
+        if self.inputs == "rgb-log":
+            x = torch.cat([frame, log_channels(frame)], dim=1)
+        elif self.inputs == "rgb-prev":
+            last = state[2] if state is not None else frame.new_zeros(frame.shape[0], HEAD_OUTPUTS[self.head])
+            x = torch.cat([frame, apply_head(frame, last, self.head)], dim=1)
+        else:
+            x = frame
+        x = torch.relu(self.bn(self.in_cnv(x)))
+        h, c = self.RNNcell(x, cell)
+        x = torch.relu(self.rnn_cnv(h))
         z = self.out_linear(x.mean(dim=(2, 3)))
         if self.head == "gamma":
-            return torch.relu(z)[:, 0], state
-        return z, state
+            return torch.relu(z)[:, 0], (h, c)
+        return z, ((h, c, z) if self.inputs == "rgb-prev" else (h, c))
 
     def forward(self, frames: Tensor) -> Tensor:
         """A batch of sequences: ``(B, T, 3, H, W)`` in [0, 1] -> outputs ``(B, T)`` (``gamma`` head) or
@@ -116,17 +154,6 @@ class GammaNet(nn.Module):
             a, state = self.step(frames[:, t], state)
             out.append(a)
         return torch.stack(out, dim=1)
-
-
-def correct(frames: Tensor, a: Tensor, eps: float = 1e-6) -> Tensor:
-    """Differentiable correction ``I ** (1/a)`` for training; ``a`` broadcasts over ``(..., 3, H, W)``.
-
-    ``a`` is floored at ``eps`` and the base at ``eps`` so that gradients stay finite.
-    """
-    gamma = 1.0 / a.clamp_min(eps)
-    while gamma.ndim < frames.ndim:
-        gamma = gamma.unsqueeze(-1)
-    return frames.clamp_min(eps) ** gamma
 
 
 def parameter_count(model: nn.Module) -> int:

@@ -119,6 +119,9 @@ def sidecar_record(
             f"(cv::LUT); that is {LUT_FORMULA[head].values} on [0, 1] values",
         },
         "correction": correction_parameters(head) if sig.head_names in (("a",), ("z",)) else None,
+        # what the network reads of the frame: the graph's input is RGB either way (an rgb-log network computes
+        # its log channels inside the graph), so a host needs this only to know which model it runs
+        "network_inputs": getattr(weights.net, "inputs", "rgb"),
         "check": {
             "onnxruntime_vs_torch_max_abs_diff": check_max_diff,
             "tolerance": EXPORT_TOLERANCE,

@@ -32,10 +32,10 @@ from safetensors.torch import load_file, save_file
 
 from .atomic import atomic_path, write_json_atomic
 from .checkpoint import load_weights, save_weights
-from .correction import apply_curve, apply_gain_gamma, curve_slopes_from_raw, gain_gamma_from_raw
+from .correction import apply_gain_gamma, apply_head, correct
 from .errors import InputError, OptionError
 from .limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE
-from .model import HEAD_OUTPUTS, GammaNet, correct, parameter_count
+from .model import HEAD_OUTPUTS, INPUT_CHANNELS, GammaNet, parameter_count
 from .sources import clip_frames
 
 SPECULAR_THRESHOLD = 0.7
@@ -65,12 +65,15 @@ class TrainConfig:
     consistency: float = 0.5  # weight of the paper's loss inside "hybrid"
     temporal: float = 0.0  # weight of the error's frame-to-frame change inside the supervised objectives
     exposure_jitter: float = 0.0  # span of the window-constant exposure change of "relative" (0: none)
+    inputs: str = "rgb"  # "rgb" (the paper's) or "rgb-log" (the frame and its log intensity; colonlight.model)
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
             raise OptionError(f"objective must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}")
         if self.head not in HEAD_OUTPUTS:
             raise OptionError(f"head must be one of {', '.join(HEAD_OUTPUTS)}, got {self.head!r}")
+        if self.inputs not in INPUT_CHANNELS:
+            raise OptionError(f"inputs must be one of {', '.join(INPUT_CHANNELS)}, got {self.inputs!r}")
         if self.exposure_jitter < 0 or not math.isfinite(self.exposure_jitter):
             raise OptionError(f"exposure jitter must be finite and >= 0, got {self.exposure_jitter!r}")
         if self.exposure_jitter and self.objective != "relative":
@@ -121,15 +124,26 @@ def load_clip_array(path: Path, size: int, fps: float | None) -> np.ndarray:
 
 def initial_net(cfg: TrainConfig) -> GammaNet:
     """A fresh network, or ``cfg.init``'s weights; a checkpoint with another head gives its backbone (every
-    layer but the output layer), so a gain-gamma model can start from a model trained with the paper's loss."""
+    layer but the output layer), so a gain-gamma model can start from a model trained with the paper's loss.
+
+    An ``rgb`` checkpoint started as an ``rgb-log`` network keeps its first convolution's RGB weights and gets
+    zero weights for the log channels, so training starts from exactly the checkpoint's corrections and the
+    log channels are used only as far as they help."""
     if not cfg.init:
-        return GammaNet(head=cfg.head)
+        return GammaNet(head=cfg.head, inputs=cfg.inputs)
     start = load_weights(cfg.init).net
-    if start.head == cfg.head:
+    if start.head == cfg.head and start.inputs == cfg.inputs:
         return start
-    net = GammaNet(head=cfg.head)
-    backbone = {k: v for k, v in start.state_dict().items() if not k.startswith("out_linear.")}
-    net.load_state_dict(backbone, strict=False)
+    net = GammaNet(head=cfg.head, inputs=cfg.inputs)
+    state = start.state_dict()
+    keep = {k: v for k, v in state.items() if not k.startswith("out_linear.") or start.head == cfg.head}
+    if start.inputs != cfg.inputs:
+        weight = net.in_cnv.weight.detach().clone()
+        weight.zero_()
+        shared = min(weight.shape[1], state["in_cnv.weight"].shape[1])
+        weight[:, :shared] = state["in_cnv.weight"][:, :shared]
+        keep["in_cnv.weight"] = weight
+    net.load_state_dict(keep, strict=False)
     return net
 
 
@@ -241,16 +255,6 @@ class SequenceSet:
     def _stack(self, clips: list[torch.Tensor], ids: Sequence[int]) -> torch.Tensor:
         seqs = [clips[ci][s : s + self.seq_len] for ci, s in (self.index[i] for i in ids)]
         return torch.stack(seqs).float().div_(255.0)
-
-
-def apply_head(frames: torch.Tensor, out: torch.Tensor, head: str) -> torch.Tensor:
-    """Frames corrected by the head's outputs (``(B, T)`` for ``gamma``, ``(B, T, K)`` for the others)."""
-    if head == "gamma":
-        return correct(frames, out)
-    if head == "curve":
-        return apply_curve(frames, curve_slopes_from_raw(out))
-    gain, gamma = gain_gamma_from_raw(out)
-    return apply_gain_gamma(frames, gain, gamma)
 
 
 def unclipped(frames: torch.Tensor) -> torch.Tensor:
@@ -391,13 +395,22 @@ def _evaluate(net: GammaNet, data: SequenceSet, cfg: TrainConfig) -> float | Non
     return total / count
 
 
-def _save_state(path: Path, net: GammaNet, opt: torch.optim.Optimizer, epoch: int, history: list[EpochRecord]) -> None:
-    """Resumable training state: tensors in safetensors, the rest in JSON (nothing pickled)."""
+def _save_state(
+    path: Path,
+    net: GammaNet,
+    opt: torch.optim.Optimizer,
+    epoch: int,
+    history: list[EpochRecord],
+    card: dict[str, Any],
+) -> None:
+    """Resumable training state: tensors in safetensors, the rest in JSON (nothing pickled). ``card``: the model
+    card this epoch's weights would get, so that any epoch can be exported later (``export_epoch``)."""
     tensors = {f"model.{k}": v.detach().contiguous() for k, v in net.state_dict().items()}
     opt_state = opt.state_dict()
     meta: dict[str, Any] = {
         "epoch": epoch,
         "history": [asdict(h) for h in history],
+        "card": card,
         "param_groups": opt_state["param_groups"],
         "steps": {},
     }
@@ -440,6 +453,9 @@ ARCHITECTURES = {
     "curve": "GammaNet backbone (Zhang et al. IPMI 2021): conv-BN-ReLU, ConvLSTM(32), conv-ReLU, GAP, "
     "linear(32->8): slopes of a monotone tone curve (colonlight.correction)",
 }
+
+
+INPUT_TEXT = "; input: RGB and its log intensity (6 channels)"
 
 
 def objective_text(cfg: TrainConfig) -> str:
@@ -499,6 +515,12 @@ def train_model(
     if len(train_set) == 0:
         raise InputError(f"no training sequences: clips need at least {cfg.seq_len} frames")
 
+    counts = {
+        "train_clips": len(train_clips),
+        "train_sequences": len(train_set),
+        "val_clips": len(val_clips),
+        "val_sequences": len(val_set),
+    }
     net = initial_net(cfg)
     net.train()
     if cfg.frozen_bn:
@@ -532,18 +554,35 @@ def train_model(
                 on_step(epoch, step + 1, steps, loss.item())
         record = EpochRecord(epoch + 1, total / len(train_set), _evaluate(net, val_set, cfg), time.perf_counter() - t0)
         history.append(record)
-        _save_state(run_dir / "checkpoints" / f"epoch_{epoch + 1:03d}", net, opt, epoch + 1, history)
+        card = model_card(net, cfg, name, history, counts, card_extra)
+        _save_state(run_dir / "checkpoints" / f"epoch_{epoch + 1:03d}", net, opt, epoch + 1, history, card)
         if on_epoch:
             on_epoch(record)
 
     net.eval()
+    weights_path = run_dir / f"{name}.safetensors"
+    card = save_weights(net, weights_path, model_card(net, cfg, name, history, counts, card_extra))
+    return TrainResult(weights=weights_path, card=card, history=history)
+
+
+def model_card(
+    net: GammaNet,
+    cfg: TrainConfig,
+    name: str,
+    history: Sequence[EpochRecord],
+    counts: dict[str, int],
+    card_extra: dict[str, Any] | None,
+) -> dict[str, Any]:
+    """The model card of a run's weights after ``history``'s epochs (``counts``: clips and windows trained and
+    validated on)."""
     from . import __version__
 
-    card = {
+    return {
         "name": name,
         "version": __version__,
-        "architecture": ARCHITECTURES[cfg.head],
+        "architecture": ARCHITECTURES[cfg.head] + (INPUT_TEXT if cfg.inputs == "rgb-log" else ""),
         "head": cfg.head,
+        "inputs": cfg.inputs,
         "seed_frames": cfg.seed_frames,
         "parameters": parameter_count(net),
         "input_size": cfg.size,
@@ -552,16 +591,36 @@ def train_model(
             "objective": objective_text(cfg),
             "batchnorm": "frozen (running statistics)" if cfg.frozen_bn else "batch statistics",
             "val_loss": "the paper's loss (no anchor)" if cfg.objective == "paper" else "the objective (no anchor)",
-            "train_clips": len(train_clips),
-            "train_sequences": len(train_set),
-            "val_clips": len(val_clips),
-            "val_sequences": len(val_set),
+            **counts,
             "history": [asdict(h) for h in history],
             "torch": torch.__version__,
             "python": platform.python_version(),
             **(card_extra or {}),
         },
     }
-    weights_path = run_dir / f"{name}.safetensors"
-    card = save_weights(net, weights_path, card)
-    return TrainResult(weights=weights_path, card=card, history=history)
+
+
+def export_epoch(run_dir: Path, epoch: int, out: Path | None = None) -> TrainResult:
+    """Weights and card of epoch ``epoch`` of the run in ``run_dir`` (default ``run_dir/NAME-epochNNN``), from
+    the state saved after it: model selection picks an epoch on validation clips, often not the last one.
+    The card is the one the run would have written had it stopped there, with ``shipped_epoch`` set."""
+    run_dir = Path(run_dir)
+    state = run_dir / "checkpoints" / f"epoch_{epoch:03d}"
+    if not state.with_suffix(".json").is_file():
+        saved = sorted(int(p.stem.removeprefix("epoch_")) for p in (run_dir / "checkpoints").glob("epoch_*.json"))
+        have = f"epochs saved: {', '.join(map(str, saved))}" if saved else "no epoch saved yet"
+        raise InputError(f"{run_dir}: no saved state for epoch {epoch} ({have})")
+    try:
+        meta = json.loads(state.with_suffix(".json").read_text(encoding="utf-8"))
+        card = meta["card"]
+        tensors = load_file(str(state.with_suffix(".safetensors")))
+    except KeyError:
+        raise InputError(f"{state}.json: saved by an older colonlight, it has no model card to export") from None
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{state}: unreadable training state ({exc})") from exc
+    net = GammaNet(head=card["head"], inputs=card.get("inputs", "rgb"))
+    net.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
+    card = {**card, "training": {**card["training"], "shipped_epoch": epoch}}
+    weights_path = Path(out) if out is not None else run_dir / f"{card['name']}-epoch{epoch:03d}.safetensors"
+    card = save_weights(net.eval(), weights_path, card)
+    return TrainResult(weights=weights_path, card=card, history=[EpochRecord(**h) for h in meta["history"]])

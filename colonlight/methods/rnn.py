@@ -193,6 +193,8 @@ class RecurrentGammaMethod(Method):
             params["gain_range"] = [GAIN_MIN, GAIN_MAX]
         if self.weights.head == "curve":
             params["curve_knots"] = list(CURVE_KNOTS)
+        if self.weights.net.inputs != "rgb":  # likewise: the paper's input goes unsaid
+            params["inputs"] = self.weights.net.inputs
         return params
 
     def model_info(self) -> dict[str, Any]:

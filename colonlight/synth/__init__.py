@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from ..discovery import SYNTH_FRAMES, SYNTH_VIDEO
 from .clip import SynthFrame, build_scene, generate_clip, render_frame
-from .config import PARAM_SPECS, Split, SynthConfig
+from .config import PARAM_SPECS, SPLITS, Split, SynthConfig, parse_split
 from .overlay import BORDERS, OverlaySpec
 from .writer import GENERATOR_VERSION, decode_depth, encode_depth, make_dataset, write_clip
 
@@ -27,12 +27,14 @@ __all__ = [
     "OverlaySpec",
     "PARAM_SPECS",
     "SYNTH_FRAMES",
+    "SPLITS",
     "SYNTH_VIDEO",
     "Split",
     "SynthConfig",
     "SynthFrame",
     "build_scene",
     "decode_depth",
+    "parse_split",
     "encode_depth",
     "generate_clip",
     "make_dataset",

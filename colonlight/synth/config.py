@@ -11,14 +11,24 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import numpy as np
 
 from ..limits import DEFAULT_FPS
 
 Split = Literal["train", "heldout"]
+#: The generator's two families, in the order help texts list them.
+SPLITS: tuple[Split, ...] = get_args(Split)
 OccluderMode = Literal["random", "force", "forbid"]
+
+
+def parse_split(text: str) -> Split:
+    """``text`` as one of ``SPLITS``; ValueError names the choices otherwise."""
+    for split in SPLITS:
+        if text == split:
+            return split
+    raise ValueError(f"split must be {' or '.join(repr(s) for s in SPLITS)}, got {text!r}")
 
 
 @dataclass(frozen=True)
@@ -241,8 +251,7 @@ class SynthConfig:
         ``split="heldout"``: each knob with held-out intervals goes out of the train range with probability
         ``HELDOUT_PROB``, and at least two do; their names are listed in ``heldout_params``.
         """
-        if split not in ("train", "heldout"):
-            raise ValueError(f"split must be 'train' or 'heldout', got {split!r}")
+        split = parse_split(split)
         names = [n for n, s in PARAM_SPECS.items() if n not in overrides]
         out_names: set[str] = set()
         if split == "heldout":

@@ -105,6 +105,14 @@ def test_train_command_on_synthetic_clips(tmp_path: Path) -> None:
     )
     assert card["training"]["anchor"] == 0.05 and "brightness anchor" in card["training"]["objective"]
     assert len(card["training"]["history"]) == 1
+    exported = runner.invoke(app, ["train", "-o", str(tmp_path / "run"), "--export-epoch", "1"])
+    assert exported.exit_code == 0, exported.output
+    assert (tmp_path / "run" / "colonlight-rnn-epoch001.safetensors").is_file()
+    epoch_card = json.loads((tmp_path / "run" / "colonlight-rnn-epoch001.json").read_text())
+    assert epoch_card["sha256"] == card["sha256"] and epoch_card["training"]["shipped_epoch"] == 1
+    missing = runner.invoke(app, ["train", "-o", str(tmp_path / "run"), "--export-epoch", "2"])
+    assert missing.exit_code == 1 and "no saved state for epoch 2" in missing.output
+    assert "Traceback" not in missing.output and len(missing.output.strip().splitlines()) == 1
     out = runner.invoke(
         app,
         [

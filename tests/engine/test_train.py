@@ -11,7 +11,16 @@ import pytest
 import torch
 
 from colonlight.checkpoint import load_weights
-from colonlight.train import SPECULAR_THRESHOLD, SequenceSet, TrainConfig, sequence_loss, train_model, window_starts
+from colonlight.errors import InputError
+from colonlight.train import (
+    SPECULAR_THRESHOLD,
+    SequenceSet,
+    TrainConfig,
+    export_epoch,
+    sequence_loss,
+    train_model,
+    window_starts,
+)
 
 
 def _flicker_clip(folder: Path, seed: int, n: int = 20, size: int = 48) -> Path:
@@ -82,6 +91,7 @@ def test_short_training_lowers_loss_and_resumes_identically(tmp_path: Path) -> N
 
     partial = train_model(clips[:2], clips[2:], tmp_path / "part", TrainConfig(**{**vars(cfg), "epochs": 1}))
     assert len(partial.history) == 1
+    partial_state = load_weights(partial.weights).net.state_dict()  # before the resumes below overwrite it
     resumed = train_model(clips[:2], clips[2:], tmp_path / "part", cfg)  # continues from epoch 1
     assert [h.epoch for h in resumed.history] == [1, 2, 3]
     a, b = load_weights(full.weights).net.state_dict(), load_weights(resumed.weights).net.state_dict()
@@ -93,6 +103,20 @@ def test_short_training_lowers_loss_and_resumes_identically(tmp_path: Path) -> N
     assert [g["lr"] for g in state["param_groups"]] == [1e-4] and len(slower.history) == 4
     card = json.loads(full.weights.with_suffix(".json").read_text())
     assert card["input_size"] == 32 and card["training"]["epochs"] == 3 and len(card["sha256"]) == 64
+
+    # any saved epoch exports as the weights and card the run would have written had it stopped there
+    first = export_epoch(tmp_path / "full", 1)
+    assert first.weights == tmp_path / "full" / "colonlight-rnn-epoch001.safetensors"
+    first_state = load_weights(first.weights).net.state_dict()  # the 1-epoch run's weights
+    for k in first_state:
+        assert torch.allclose(first_state[k].float(), partial_state[k].float(), atol=1e-6), k
+    assert first.card["training"]["shipped_epoch"] == 1 and len(first.card["training"]["history"]) == 1
+    last = export_epoch(tmp_path / "full", 3, tmp_path / "last.safetensors")
+    assert last.card["sha256"] == card["sha256"]
+    same = {k: v for k, v in card["training"].items() if k != "history"}
+    assert {k: v for k, v in last.card["training"].items() if k not in ("history", "shipped_epoch")} == same
+    with pytest.raises(InputError, match=r"no saved state for epoch 7 \(epochs saved: 1, 2, 3\)"):
+        export_epoch(tmp_path / "full", 7)
 
 
 def test_sequence_set_batches(tmp_path: Path) -> None:

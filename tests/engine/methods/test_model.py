@@ -12,8 +12,9 @@ import pytest
 import torch
 
 from colonlight.checkpoint import load_weights
+from colonlight.correction import correct
 from colonlight.methods.rnn import DEFAULT_MODEL_SIZE, GAMMA_MAX, GAMMA_MIN, RecurrentGammaMethod, clamp_gamma
-from colonlight.model import GammaNet, correct, parameter_count
+from colonlight.model import GammaNet, parameter_count
 
 
 def _read_rgb(path: Path) -> np.ndarray:

@@ -188,25 +188,41 @@ def test_usage_and_input_errors_are_one_line(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    ("head", "n_outputs", "build", "apply"),
+    ("head", "n_outputs", "build", "apply", "inputs"),
     [
-        ("gain-gamma", 2, "min(1, gain * (v / 255) ^ gamma)", "out = min(1, gain * in ^ gamma)"),
-        ("curve", CURVE_SEGMENTS, "min(1, f(v / 255))", "out = min(1, f(in))"),
+        ("gain-gamma", 2, "min(1, gain * (v / 255) ^ gamma)", "out = min(1, gain * in ^ gamma)", "rgb"),
+        ("gain-gamma", 2, "min(1, gain * (v / 255) ^ gamma)", "out = min(1, gain * in ^ gamma)", "rgb-log"),
+        ("curve", CURVE_SEGMENTS, "min(1, f(v / 255))", "out = min(1, f(in))", "rgb-prev"),
+        ("curve", CURVE_SEGMENTS, "min(1, f(v / 255))", "out = min(1, f(in))", "rgb"),
     ],
 )
 def test_a_head_with_raw_outputs_exports_as_z_with_its_correction_and_runs_on_onnxruntime(
-    head: str, n_outputs: int, build: str, apply: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    head: str,
+    n_outputs: int,
+    build: str,
+    apply: str,
+    inputs: str,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """The gain-gamma and curve heads (random output layers, so the outputs move): one output ``z``, the sidecar's
-    rule, table and correction numbers for that head, and the rnn method on ONNX Runtime matching torch."""
+    rule, table and correction numbers for that head, and the rnn method on ONNX Runtime matching torch; a
+    network that reads the log intensity too computes it inside the graph (the host still sends RGB), and one that
+    reads the frame under the last correction carries that correction's outputs as a third state tensor."""
     monkeypatch.setenv("COLONLIGHT_CACHE_DIR", str(tmp_path / "cache"))
-    weights = random_head_weights(head, tmp_path / "w.safetensors", "1" * 64)
+    weights = random_head_weights(head, tmp_path / "w.safetensors", "1" * 64, inputs=inputs)
+    if inputs != "rgb":
+        with torch.no_grad():  # the extra channels must matter for the comparison to test them
+            weights.net.in_cnv.weight[:, 3:].normal_(0.0, 0.2)
     record = export_onnx(weights, tmp_path / "w.onnx", size=32)
-    assert [o["name"] for o in record["outputs"]] == ["z", "h_out", "c_out"]
+    state = ["h", "c", "z_last"] if inputs == "rgb-prev" else ["h", "c"]
+    assert [o["name"] for o in record["outputs"]] == ["z", *(f"{n}_out" for n in state)]
+    assert [i["name"] for i in record["inputs"]] == ["frame", *state]
     assert record["outputs"][0]["shape"] == [1, n_outputs] and record["seed_frames"]["count"] == 0
     assert record["gamma"]["from_output"] == "z"
     assert build in record["lut"]["build"] and apply in record["lut"]["apply"] and "^ gamma on" not in apply
     assert record["correction"]["head"] == head and record["correction"]["gamma_range"] == [GAMMA_MIN, GAMMA_MAX]
+    assert record["network_inputs"] == inputs
     if head == "curve":
         assert record["gamma"]["knots"] == record["correction"]["knots"] == list(CURVE_KNOTS)
     else:

@@ -1,0 +1,95 @@
+"""The network's inputs beyond the paper's RGB: ``rgb-log`` (the frame beside its log intensity, in which a gain
+change is one shift everywhere) and ``rgb-prev`` (the frame beside itself under the last frame's correction).
+Either starts from an ``rgb`` checkpoint exactly and survives saving and loading."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from colonlight.checkpoint import load_weights, save_weights
+from colonlight.errors import CheckpointError, OptionError
+from colonlight.methods.rnn import RecurrentGammaMethod
+from colonlight.model import LOG_FLOOR, GammaNet, log_channels
+from colonlight.train import TrainConfig, initial_net
+
+from ...networks import random_head_weights
+
+
+def test_log_channels_span_the_floor_to_one_and_turn_a_gain_into_one_shift() -> None:
+    ends = log_channels(torch.tensor([0.0, LOG_FLOOR, 1.0]))
+    assert torch.allclose(ends, torch.tensor([0.0, 0.0, 1.0]), atol=1e-6)
+    frame = torch.rand(1, 3, 8, 8) * 0.5 + 0.05
+    shift = log_channels(frame * 1.7) - log_channels(frame)
+    assert float(shift.std()) < 1e-5 and float(shift.mean()) > 0.05
+
+
+@pytest.mark.parametrize("inputs", ["rgb-log", "rgb-prev"])
+def test_an_rgb_checkpoint_starts_the_network_with_the_same_outputs(inputs: str, tmp_path: Path) -> None:
+    torch.manual_seed(0)
+    rgb = GammaNet(head="gain-gamma").eval()
+    with torch.no_grad():
+        rgb.out_linear.weight.normal_(0.0, 0.5)
+    path = tmp_path / "rgb.safetensors"
+    save_weights(rgb, path, {"name": "rgb", "head": "gain-gamma"})
+    net = initial_net(TrainConfig(init=str(path), head="gain-gamma", inputs=inputs, objective="relative")).eval()
+    assert net.inputs == inputs and tuple(net.in_cnv.weight.shape[:2]) == (32, 6)
+    assert torch.equal(net.in_cnv.weight[:, 3:], torch.zeros_like(net.in_cnv.weight[:, 3:]))
+    clip = torch.rand(2, 6, 3, 24, 24)
+    with torch.no_grad():
+        assert torch.equal(net(clip), rgb(clip))
+
+
+def test_rgb_log_weights_round_trip_and_a_card_that_disagrees_is_refused(tmp_path: Path) -> None:
+    torch.manual_seed(1)
+    net = GammaNet(head="gain-gamma", inputs="rgb-log").eval()
+    path = tmp_path / "log.safetensors"
+    save_weights(net, path, {"name": "log", "head": "gain-gamma", "inputs": "rgb-log"})
+    loaded = load_weights(path).net
+    assert loaded.inputs == "rgb-log"
+    clip = torch.rand(1, 4, 3, 24, 24)
+    with torch.no_grad():
+        assert torch.equal(loaded(clip), net(clip))
+    card_file = path.with_suffix(".json")
+    card = json.loads(card_file.read_text())
+    card_file.write_text(json.dumps({**card, "inputs": "rgb"}))
+    with pytest.raises(CheckpointError, match="inputs 'rgb', the weights read 6 channels"):
+        load_weights(path)
+    card_file.write_text(json.dumps({k: v for k, v in card.items() if k != "inputs"}))
+    with pytest.raises(CheckpointError, match="could be rgb-log or rgb-prev; its model card must say which"):
+        load_weights(path)
+
+
+def test_rgb_prev_sees_the_frame_under_the_last_correction_and_carries_it_in_the_state() -> None:
+    torch.manual_seed(3)
+    net = GammaNet(head="gain-gamma", inputs="rgb-prev").eval()
+    with torch.no_grad():
+        net.out_linear.weight.normal_(0.0, 0.5)
+        net.in_cnv.weight[:, :3].zero_()  # only the corrected copy reaches the network
+    frame = torch.rand(1, 3, 16, 16) * 0.8 + 0.1
+    with torch.no_grad():
+        z1, state = net.step(frame, None)
+        assert len(state) == 3 and torch.equal(state[2], z1)
+        z2, _ = net.step(frame, state)
+        # the same frame under the same correction, from the same memory: what changes is the last correction
+        fresh, _ = net.step(frame, (state[0], state[1], torch.zeros_like(z1)))
+    assert not torch.allclose(z2, fresh)
+    with pytest.raises(OptionError, match="needs the gain-gamma or curve head"):
+        GammaNet(head="gamma", inputs="rgb-prev")
+
+
+def test_the_enhancement_record_names_the_input_only_when_it_is_not_the_papers(tmp_path: Path) -> None:
+    for inputs in ("rgb", "rgb-log", "rgb-prev"):
+        weights = random_head_weights("gain-gamma", tmp_path / f"{inputs}.safetensors", "2" * 64, inputs=inputs)
+        params = RecurrentGammaMethod(weights=weights, device="cpu").parameters()
+        assert params.get("inputs") == (None if inputs == "rgb" else inputs)
+
+
+def test_unknown_inputs_are_refused_in_one_line() -> None:
+    with pytest.raises(OptionError, match="unknown inputs 'gray'"):
+        GammaNet(inputs="gray")
+    with pytest.raises(OptionError, match="inputs must be one of rgb, rgb-log, rgb-prev"):
+        TrainConfig(inputs="gray")
