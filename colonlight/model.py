@@ -5,7 +5,7 @@ Per frame: conv3x3(3->32) + BatchNorm + ReLU -> ConvLSTM cell (hidden 32, forget
 gamma applied is ``1/a``. Attribute names match the release's state-dict keys (``in_cnv``, ``bn``,
 ``RNNcell.conv``, ``rnn_cnv``, ``out_linear``) so its checkpoint loads as it is.
 
-Two heads share that backbone (see :mod:`colonlight.correction` for what their outputs mean):
+Three heads share that backbone (see :mod:`colonlight.correction` for what their outputs mean):
 
 * ``gamma`` (the paper's, the authors' checkpoint): ``linear(32->1) + ReLU = a``, gamma ``1/a``;
 * ``gain-gamma`` (colonlight's default model): ``linear(32->2)``, raw outputs mapped to a gain and a gamma, so

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 import torch
 from kornia.metrics import ssim as kornia_ssim
+from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 from .atomic import atomic_path, write_json_atomic
@@ -65,7 +66,7 @@ class TrainConfig:
     consistency: float = 0.5  # weight of the paper's loss inside "hybrid"
     temporal: float = 0.0  # weight of the error's frame-to-frame change inside the supervised objectives
     exposure_jitter: float = 0.0  # span of the window-constant exposure change of "relative" (0: none)
-    inputs: str = "rgb"  # "rgb" (the paper's) or "rgb-log" (the frame and its log intensity; colonlight.model)
+    inputs: str = "rgb"  # "rgb" (the paper's), "rgb-log" or "rgb-prev" (colonlight.model)
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
@@ -126,9 +127,9 @@ def initial_net(cfg: TrainConfig) -> GammaNet:
     """A fresh network, or ``cfg.init``'s weights; a checkpoint with another head gives its backbone (every
     layer but the output layer), so a gain-gamma model can start from a model trained with the paper's loss.
 
-    An ``rgb`` checkpoint started as an ``rgb-log`` network keeps its first convolution's RGB weights and gets
-    zero weights for the log channels, so training starts from exactly the checkpoint's corrections and the
-    log channels are used only as far as they help."""
+    An ``rgb`` checkpoint started as an ``rgb-log`` or ``rgb-prev`` network keeps its first convolution's RGB
+    weights and gets zero weights for the extra channels, so training starts from exactly the checkpoint's
+    corrections and the extra channels are used only as far as they help."""
     if not cfg.init:
         return GammaNet(head=cfg.head, inputs=cfg.inputs)
     start = load_weights(cfg.init).net
@@ -455,7 +456,12 @@ ARCHITECTURES = {
 }
 
 
-INPUT_TEXT = "; input: RGB and its log intensity (6 channels)"
+#: What the card's architecture adds for an input other than the paper's RGB.
+INPUT_TEXT = {
+    "rgb": "",
+    "rgb-log": "; input: RGB and its log intensity (6 channels)",
+    "rgb-prev": "; input: RGB and the frame under the previous frame's correction (6 channels; state h, c, z_last)",
+}
 
 
 def objective_text(cfg: TrainConfig) -> str:
@@ -580,7 +586,7 @@ def model_card(
     return {
         "name": name,
         "version": __version__,
-        "architecture": ARCHITECTURES[cfg.head] + (INPUT_TEXT if cfg.inputs == "rgb-log" else ""),
+        "architecture": ARCHITECTURES[cfg.head] + INPUT_TEXT[cfg.inputs],
         "head": cfg.head,
         "inputs": cfg.inputs,
         "seed_frames": cfg.seed_frames,
@@ -616,7 +622,7 @@ def export_epoch(run_dir: Path, epoch: int, out: Path | None = None) -> TrainRes
         tensors = load_file(str(state.with_suffix(".safetensors")))
     except KeyError:
         raise InputError(f"{state}.json: saved by an older colonlight, it has no model card to export") from None
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, SafetensorError) as exc:
         raise InputError(f"{state}: unreadable training state ({exc})") from exc
     net = GammaNet(head=card["head"], inputs=card.get("inputs", "rgb"))
     net.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})

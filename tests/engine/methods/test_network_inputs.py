@@ -14,7 +14,7 @@ from colonlight.checkpoint import load_weights, save_weights
 from colonlight.errors import CheckpointError, OptionError
 from colonlight.methods.rnn import RecurrentGammaMethod
 from colonlight.model import LOG_FLOOR, GammaNet, log_channels
-from colonlight.train import TrainConfig, initial_net
+from colonlight.train import TrainConfig, initial_net, model_card
 
 from ...networks import random_head_weights
 
@@ -86,6 +86,14 @@ def test_the_enhancement_record_names_the_input_only_when_it_is_not_the_papers(t
         weights = random_head_weights("gain-gamma", tmp_path / f"{inputs}.safetensors", "2" * 64, inputs=inputs)
         params = RecurrentGammaMethod(weights=weights, device="cpu").parameters()
         assert params.get("inputs") == (None if inputs == "rgb" else inputs)
+
+
+@pytest.mark.parametrize(("inputs", "says"), [("rgb", None), ("rgb-log", "log intensity"), ("rgb-prev", "z_last")])
+def test_the_card_says_what_the_network_reads(inputs: str, says: str | None) -> None:
+    cfg = TrainConfig(head="gain-gamma", inputs=inputs, objective="relative")
+    card = model_card(GammaNet(head="gain-gamma", inputs=inputs), cfg, "n", [], {}, None)
+    assert card["inputs"] == inputs and card["training"]["inputs"] == inputs
+    assert ("input:" not in card["architecture"]) if says is None else (says in card["architecture"])
 
 
 def test_unknown_inputs_are_refused_in_one_line() -> None:
