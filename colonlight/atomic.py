@@ -53,6 +53,9 @@ def atomic_path(dest: Path, suffix: str | None = None) -> Iterator[Path]:
     tmp = new_temporary(dest, suffix)
     try:
         yield tmp
+        # again: a writer that replaces the file rather than writing into it (safetensors' save_file does)
+        # leaves its own private mode, and a trained model's weights would be unreadable to the rest of a lab
+        os.chmod(tmp, 0o666 & ~_UMASK)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import pickle
+import stat
 from pathlib import Path
 
 import pytest
@@ -31,6 +32,14 @@ def test_roundtrip_ours(tmp_path: Path) -> None:
     assert w.name == "m" and w.input_size == 64
     for k, v in net.state_dict().items():
         assert torch.equal(v, w.net.state_dict()[k])
+
+
+def test_saved_weights_get_the_usual_permissions_like_every_other_output(tmp_path: Path) -> None:
+    """safetensors replaces the file it writes, with a private mode; the weights must still get the mode the
+    umask gives every output, as the card beside them does."""
+    path = tmp_path / "w.safetensors"
+    save_weights(GammaNet(), path, {"name": "w"})
+    assert stat.S_IMODE(path.stat().st_mode) == stat.S_IMODE(card_path(path).stat().st_mode)
 
 
 def test_authors_to_ours_conversion_keeps_outputs(authors_checkpoint: Path, tmp_path: Path) -> None:
