@@ -182,12 +182,21 @@ def load_weights(path: Path | str | None = None) -> LoadedWeights:
     return LoadedWeights(net=net, name=name, sha256=digest, path=path, card=card)
 
 
+def save_tensors(state: dict[str, torch.Tensor], path: Path, file_format: str) -> None:
+    """Write ``state`` as safetensors at ``path`` (atomically) with one metadata entry, ``format``.
+
+    One entry, not several: safetensors writes its metadata map in an order that changes from one save to the
+    next (a hash map), so two entries made the same weights differ in bytes, and in sha256, between saves.
+    What else identifies the weights (name, variant) is in the model card beside them."""
+    with atomic_path(path) as tmp:
+        save_file(state, str(tmp), metadata={"format": file_format})
+
+
 def save_weights(net: GammaNet, path: Path, card: dict[str, Any]) -> dict[str, Any]:
     """Save ``net`` as safetensors plus its model card (atomically); return the card with its sha256 filled in."""
     path = Path(path)
     state = {k: v.detach().cpu().contiguous() for k, v in net.state_dict().items()}
-    with atomic_path(path) as tmp:
-        save_file(state, str(tmp), metadata={"format": "colonlight-gammanet", "name": str(card.get("name", ""))})
+    save_tensors(state, path, "colonlight-gammanet")
     card = {**card, "sha256": sha256_file(path), "file": path.name}
     write_json_atomic(card_path(path), card)
     return card

@@ -613,20 +613,26 @@ def export_epoch(run_dir: Path, epoch: int, out: Path | None = None) -> TrainRes
     run_dir = Path(run_dir)
     state = run_dir / "checkpoints" / f"epoch_{epoch:03d}"
     if not state.with_suffix(".json").is_file():
-        saved = sorted(int(p.stem.removeprefix("epoch_")) for p in (run_dir / "checkpoints").glob("epoch_*.json"))
+        names = (p.stem.removeprefix("epoch_") for p in (run_dir / "checkpoints").glob("epoch_*.json"))
+        saved = sorted(int(n) for n in names if n.isdigit())
         have = f"epochs saved: {', '.join(map(str, saved))}" if saved else "no epoch saved yet"
         raise InputError(f"{run_dir}: no saved state for epoch {epoch} ({have})")
     try:
         meta = json.loads(state.with_suffix(".json").read_text(encoding="utf-8"))
-        card = meta["card"]
         tensors = load_file(str(state.with_suffix(".safetensors")))
-    except KeyError:
-        raise InputError(f"{state}.json: saved by an older colonlight, it has no model card to export") from None
     except (OSError, ValueError, SafetensorError) as exc:
         raise InputError(f"{state}: unreadable training state ({exc})") from exc
-    net = GammaNet(head=card["head"], inputs=card.get("inputs", "rgb"))
-    net.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
+    if not isinstance(meta, dict) or not isinstance(meta.get("card"), dict):
+        raise InputError(f"{state}.json: saved by an older colonlight, it has no model card to export")
+    card = meta["card"]
+    try:
+        net = GammaNet(head=card["head"], inputs=card.get("inputs", "rgb"))
+        net.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
+        history = [EpochRecord(**h) for h in meta["history"]]
+    except (KeyError, TypeError, OptionError, RuntimeError) as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise InputError(f"{state}: its weights do not match its card ({reason[:200]})") from None
     card = {**card, "training": {**card["training"], "shipped_epoch": epoch}}
     weights_path = Path(out) if out is not None else run_dir / f"{card['name']}-epoch{epoch:03d}.safetensors"
     card = save_weights(net.eval(), weights_path, card)
-    return TrainResult(weights=weights_path, card=card, history=[EpochRecord(**h) for h in meta["history"]])
+    return TrainResult(weights=weights_path, card=card, history=history)

@@ -18,11 +18,10 @@ import torch
 import torch.nn.functional as F
 from safetensors import SafetensorError
 from safetensors.torch import load as load_safetensors_bytes
-from safetensors.torch import save_file
 from torch import nn
 
-from ..atomic import atomic_path, write_json_atomic
-from ..checkpoint import read_card
+from ..atomic import write_json_atomic
+from ..checkpoint import read_card, save_tensors
 from ..errors import CheckpointError, OptionError
 
 VARIANTS = ("zerodce", "zerodce++")
@@ -188,8 +187,7 @@ def save_zerodce_weights(net: nn.Module, path: Path | str, card: dict[str, Any])
     path = Path(path)
     variant = "zerodce" if isinstance(net, DceNet) else "zerodce++"
     state = {k: v.detach().cpu().contiguous() for k, v in net.state_dict().items()}
-    with atomic_path(path) as tmp:
-        save_file(state, str(tmp), metadata={"format": WEIGHTS_FORMAT, "variant": variant})
+    save_tensors(state, path, f"{WEIGHTS_FORMAT}:{variant}")
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
     card = {
         "name": card.get("name", path.stem),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import cv2
@@ -117,6 +118,27 @@ def test_short_training_lowers_loss_and_resumes_identically(tmp_path: Path) -> N
     assert {k: v for k, v in last.card["training"].items() if k not in ("history", "shipped_epoch")} == same
     with pytest.raises(InputError, match=r"no saved state for epoch 7 \(epochs saved: 1, 2, 3\)"):
         export_epoch(tmp_path / "full", 7)
+
+
+def test_export_epoch_refuses_damaged_or_foreign_states_in_one_line(tmp_path: Path) -> None:
+    from safetensors.torch import save_file
+
+    state = tmp_path / "checkpoints" / "epoch_001"
+    state.parent.mkdir(parents=True)
+    save_file({"model.x": torch.zeros(1)}, str(state.with_suffix(".safetensors")))
+    cases = {
+        "{not json": "unreadable training state",
+        "[1]": "no model card to export",
+        '{"epoch": 1, "history": []}': "no model card to export",
+        '{"card": {"head": "zzz", "training": {}}, "history": []}': "do not match its card (unknown head 'zzz'",
+        '{"card": {"head": "gamma", "training": {}}, "history": []}': "do not match its card",
+    }
+    for text, message in cases.items():
+        state.with_suffix(".json").write_text(text)
+        with pytest.raises(InputError, match=re.escape(message)) as err:
+            export_epoch(tmp_path, 1)
+        assert "\n" not in str(err.value)
+    assert not list(tmp_path.glob("*-epoch001.*"))  # nothing written on the way to an error
 
 
 def test_sequence_set_batches(tmp_path: Path) -> None:

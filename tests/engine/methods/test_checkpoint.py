@@ -42,6 +42,15 @@ def test_saved_weights_get_the_usual_permissions_like_every_other_output(tmp_pat
     assert stat.S_IMODE(path.stat().st_mode) == stat.S_IMODE(card_path(path).stat().st_mode)
 
 
+def test_the_same_weights_saved_again_are_the_same_bytes(tmp_path: Path) -> None:
+    """Reproducible outputs start with the weights: saving a network twice gives one sha256 (safetensors writes
+    a metadata map of several entries in a changing order, so only one is written)."""
+    torch.manual_seed(5)
+    net = GammaNet(head="gain-gamma")
+    digests = {save_weights(net, tmp_path / f"w{i}.safetensors", {"name": "w"})["sha256"] for i in range(8)}
+    assert len(digests) == 1
+
+
 def test_authors_to_ours_conversion_keeps_outputs(authors_checkpoint: Path, tmp_path: Path) -> None:
     w = load_weights(authors_checkpoint)
     save_weights(w.net, tmp_path / "conv.safetensors", {"name": "converted"})
