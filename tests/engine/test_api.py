@@ -50,6 +50,7 @@ def test_all_is_sorted_and_pinned() -> None:
         "enhance_clip",
         "enhance_frames",
         "estimate_frames",
+        "export_epoch",
         "export_onnx",
         "gamma_lut",
         "is_available",
