@@ -139,8 +139,7 @@ def initial_net(cfg: TrainConfig) -> GammaNet:
     state = start.state_dict()
     keep = {k: v for k, v in state.items() if not k.startswith("out_linear.") or start.head == cfg.head}
     if start.inputs != cfg.inputs:
-        weight = net.in_cnv.weight.detach().clone()
-        weight.zero_()
+        weight = torch.zeros_like(net.in_cnv.weight)
         shared = min(weight.shape[1], state["in_cnv.weight"].shape[1])
         weight[:, :shared] = state["in_cnv.weight"][:, :shared]
         keep["in_cnv.weight"] = weight
@@ -396,6 +395,15 @@ def _evaluate(net: GammaNet, data: SequenceSet, cfg: TrainConfig) -> float | Non
     return total / count
 
 
+#: Prefix of the network's tensors in a training state (the optimizer's are ``opt.<param>.<name>``).
+MODEL_KEY = "model."
+
+
+def _model_state(tensors: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """The network's state dict out of a training state's tensors."""
+    return {k.removeprefix(MODEL_KEY): v for k, v in tensors.items() if k.startswith(MODEL_KEY)}
+
+
 def _save_state(
     path: Path,
     net: GammaNet,
@@ -406,7 +414,7 @@ def _save_state(
 ) -> None:
     """Resumable training state: tensors in safetensors, the rest in JSON (nothing pickled). ``card``: the model
     card this epoch's weights would get, so that any epoch can be exported later (``export_epoch``)."""
-    tensors = {f"model.{k}": v.detach().contiguous() for k, v in net.state_dict().items()}
+    tensors = {f"{MODEL_KEY}{k}": v.detach().contiguous() for k, v in net.state_dict().items()}
     opt_state = opt.state_dict()
     meta: dict[str, Any] = {
         "epoch": epoch,
@@ -429,7 +437,7 @@ def _save_state(
 def _load_state(path: Path, net: GammaNet, opt: torch.optim.Optimizer) -> tuple[int, list[EpochRecord]]:
     tensors = load_file(str(path.with_suffix(".safetensors")))
     meta = json.loads(path.with_suffix(".json").read_text())
-    net.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
+    net.load_state_dict(_model_state(tensors))
     state: dict[int, dict[str, Any]] = {}
     for key, val in tensors.items():
         if key.startswith("opt."):
@@ -627,12 +635,13 @@ def export_epoch(run_dir: Path, epoch: int, out: Path | None = None) -> TrainRes
     card = meta["card"]
     try:
         net = GammaNet(head=card["head"], inputs=card.get("inputs", "rgb"))
-        net.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
+        net.load_state_dict(_model_state(tensors))
         history = [EpochRecord(**h) for h in meta["history"]]
+        card = {**card, "training": {**card["training"], "shipped_epoch": epoch}}
+        name = str(card["name"])
     except (KeyError, TypeError, OptionError, RuntimeError) as exc:
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise InputError(f"{state}: its weights do not match its card ({reason[:200]})") from None
-    card = {**card, "training": {**card["training"], "shipped_epoch": epoch}}
-    weights_path = Path(out) if out is not None else run_dir / f"{card['name']}-epoch{epoch:03d}.safetensors"
+    weights_path = Path(out) if out is not None else run_dir / f"{name}-epoch{epoch:03d}.safetensors"
     card = save_weights(net.eval(), weights_path, card)
     return TrainResult(weights=weights_path, card=card, history=history)

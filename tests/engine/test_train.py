@@ -13,6 +13,7 @@ import torch
 
 from colonlight.checkpoint import load_weights
 from colonlight.errors import InputError
+from colonlight.model import GammaNet
 from colonlight.train import (
     SPECULAR_THRESHOLD,
     SequenceSet,
@@ -138,6 +139,16 @@ def test_export_epoch_refuses_damaged_or_foreign_states_in_one_line(tmp_path: Pa
         with pytest.raises(InputError, match=re.escape(message)) as err:
             export_epoch(tmp_path, 1)
         assert "\n" not in str(err.value)
+    # tensors that fit the card's network, but a card without its training record or name
+    net = {f"model.{k}": v for k, v in GammaNet(head="gain-gamma").state_dict().items()}
+    save_file(net, str(state.with_suffix(".safetensors")))
+    for card, missing in (
+        ({"head": "gain-gamma", "name": "n"}, "'training'"),
+        ({"head": "gain-gamma", "training": {}}, "'name'"),
+    ):
+        state.with_suffix(".json").write_text(json.dumps({"card": card, "history": []}))
+        with pytest.raises(InputError, match=re.escape(f"do not match its card ({missing})")):
+            export_epoch(tmp_path, 1)
     assert not list(tmp_path.glob("*-epoch001.*"))  # nothing written on the way to an error
 
 
