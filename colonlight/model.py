@@ -122,6 +122,11 @@ class GammaNet(nn.Module):
             nn.init.zeros_(self.out_linear.weight)
             nn.init.zeros_(self.out_linear.bias)
 
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        """Names of the tensors of ``State``, in order (what an ONNX host feeds back from frame to frame)."""
+        return ("h", "c", "z_last") if self.inputs == "rgb-prev" else ("h", "c")
+
     def step(self, frame: Tensor, state: State | None = None) -> tuple[Tensor, State]:
         """One frame. ``frame``: ``(B, 3, H, W)`` in [0, 1] -> the head's output and the new state.
 

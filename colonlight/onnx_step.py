@@ -48,11 +48,6 @@ CURVE_OUTPUT = {
 HEAD_OUTPUT = {"gamma": DEFAULT_OUTPUT, "gain-gamma": GAIN_GAMMA_OUTPUT, "curve": CURVE_OUTPUT}
 
 
-#: Names of the state tensors, by (number of them, the network's input): the ConvLSTM's ``h`` and ``c``; an
-#: ``rgb-prev`` network also carries the previous frame's head outputs (``model``).
-STATE_NAMES = {(2, "rgb"): ("h", "c"), (2, "rgb-log"): ("h", "c"), (3, "rgb-prev"): ("h", "c", "z_last")}
-
-
 class ExportError(ColonlightError):
     """The network could not be exported, or its graph does not match torch."""
 
@@ -151,8 +146,9 @@ def step_signature(weights: LoadedWeights, size: int) -> tuple[StepSignature, li
         head, _ = _split_step(net.step(frame, state))
     dict_names, tensors = _flatten_head(head)
     described = describe_outputs(weights.card, dict_names, getattr(net, "head", None))
-    known = STATE_NAMES.get((len(state), getattr(net, "inputs", "rgb")))
-    state_names = known or tuple(f"state{i}" for i in range(len(state)))
+    # the network names its state where it says (GammaNet does); else h and c for two tensors, as a ConvLSTM's
+    declared = tuple(getattr(net, "state_names", ("h", "c")))
+    state_names = declared if len(declared) == len(state) else tuple(f"state{i}" for i in range(len(state)))
     sig = StepSignature(
         size=size,
         frame_shape=(1, 3, size, size),

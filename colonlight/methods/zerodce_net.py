@@ -21,7 +21,7 @@ from safetensors.torch import load as load_safetensors_bytes
 from torch import nn
 
 from ..atomic import write_json_atomic
-from ..checkpoint import read_card, save_tensors
+from ..checkpoint import read_card, save_tensors, sha256_file
 from ..errors import CheckpointError, OptionError
 
 VARIANTS = ("zerodce", "zerodce++")
@@ -188,7 +188,7 @@ def save_zerodce_weights(net: nn.Module, path: Path | str, card: dict[str, Any])
     variant = "zerodce" if isinstance(net, DceNet) else "zerodce++"
     state = {k: v.detach().cpu().contiguous() for k, v in net.state_dict().items()}
     save_tensors(state, path, f"{WEIGHTS_FORMAT}:{variant}")
-    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    digest = sha256_file(path)
     card = {
         "name": card.get("name", path.stem),
         "variant": variant,
