@@ -67,10 +67,11 @@ def _clips(paths: list[Path]) -> list[Path]:
     return clips
 
 
-def _init_design(init: str | None) -> tuple[str, str]:
+def _init_design(init: str | None, head: str | None) -> tuple[str, str]:
     """The head and input a run keeps when ``--head`` / ``--inputs`` are not given: the starting checkpoint's
     (fine-tuning the shipped gain-gamma model keeps its head and output layer), else the paper's (one gamma,
-    from RGB)."""
+    from RGB). Asked for the paper's head (``head``), a run from the shipped model (input ``delta``) reads RGB,
+    the paper's input (``GammaNet.inputs_for_head``)."""
     if not init:
         return "gamma", "rgb"
     from colonlight import CheckpointError, load_weights
@@ -79,7 +80,7 @@ def _init_design(init: str | None) -> tuple[str, str]:
         net = load_weights(init).net
     except CheckpointError as exc:
         raise typer.BadParameter(str(exc), param_hint="--init") from None
-    return net.head, net.inputs
+    return net.head, net.inputs_for_head(head or net.head)
 
 
 def train_cmd(
@@ -138,8 +139,9 @@ def train_cmd(
         "--inputs",
         help="rgb (the paper's) | rgb-log (the frame and its log intensity, in which a gain change is the same "
         "shift everywhere) | rgb-prev (the frame and the frame under the last frame's correction; gain-gamma and "
-        "curve heads). Default: the --init checkpoint's, else rgb; an rgb checkpoint starts the others with zero "
-        "weights on the extra channels.",
+        "curve heads) | delta (the frame under the last correction and its difference from the last output; the "
+        "head changes the last correction; gain-gamma and curve heads). Default: the --init checkpoint's, else "
+        "rgb; an rgb checkpoint starts the others with zero weights on the extra channels.",
         show_default=False,
     ),
     method: str = typer.Option("rnn", "--method", help="rnn (the paper's model) | zerodce | zerodce++ (baselines)."),
@@ -187,7 +189,7 @@ def train_cmd(
 
         init = str(DEFAULT_WEIGHTS)
     if method == "rnn" and (head is None or inputs is None):
-        init_head, init_inputs = _init_design(init)
+        init_head, init_inputs = _init_design(init, head)
         head, inputs = head or init_head, inputs or init_inputs
     train_clips = _clips(list(data or []))
     val_clips = _clips(list(val or []))

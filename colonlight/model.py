@@ -25,6 +25,14 @@ Three inputs (``INPUT_CHANNELS``), the first convolution's only difference:
   fits unless the camera changed; this shows the network what keeping it would give, rather than leaving it to
   infer its own last output from its memory. ``gain-gamma`` and ``curve`` heads only (their zero output is the
   identity; the gamma head's is not a correction).
+* ``delta``: the frame under the previous frame's correction beside its difference from the previous output
+  frame (``DELTA_SCALE`` x (last output - frame under the last correction), zero before the first), both at the
+  network's size; the head predicts a *change* of the last correction (``z = z_last + out``) instead of a
+  correction. The relative objective asks that the camera's look at the start be kept; this makes keeping it the
+  structure rather than a memory task: zero outputs keep the last correction, and where the camera did not
+  change the difference is motion alone. The state carries ``z_last`` and the last output frame (``y_last``);
+  an all-zero ``y_last`` (the zero state an ONNX host starts with) means "no previous frame". Same heads as
+  ``rgb-prev``. Measured in session 14 (README): it drifts less on undisturbed clips, not enough to ship.
 """
 
 from __future__ import annotations
@@ -41,12 +49,17 @@ HIDDEN = 32
 BN_MOMENTUM = 0.01
 FORGET_BIAS = 1.0
 
-#: ``(h, c)`` of the ConvLSTM; ``rgb-prev`` networks add the previous frame's head outputs.
+#: ``(h, c)`` of the ConvLSTM; ``rgb-prev`` networks add the previous frame's head outputs, ``delta`` networks
+#: those and the previous output frame.
 State = tuple[Tensor, ...]
 #: Head name -> number of outputs of ``out_linear``.
 HEAD_OUTPUTS = {"gamma": 1, "gain-gamma": 2, "curve": CURVE_SEGMENTS}
 #: Input name -> channels ``in_cnv`` reads.
-INPUT_CHANNELS = {"rgb": 3, "rgb-log": 6, "rgb-prev": 6}
+INPUT_CHANNELS = {"rgb": 3, "rgb-log": 6, "rgb-prev": 6, "delta": 6}
+#: The ``delta`` input's difference channels are scaled up by this.
+DELTA_SCALE = 8.0
+#: Inputs that carry the last correction in the state (their head's zero output must be the identity).
+CARRIES_CORRECTION = ("rgb-prev", "delta")
 #: The darkest level the log channels tell apart (one 8-bit step); darker samples read as it.
 LOG_FLOOR = 1.0 / 255.0
 
@@ -93,8 +106,8 @@ class GammaNet(nn.Module):
             raise OptionError(f"unknown head {head!r}; choose from {', '.join(HEAD_OUTPUTS)}")
         if inputs not in INPUT_CHANNELS:
             raise OptionError(f"unknown inputs {inputs!r}; choose from {', '.join(INPUT_CHANNELS)}")
-        if inputs == "rgb-prev" and head == "gamma":
-            raise OptionError("inputs 'rgb-prev' needs the gain-gamma or curve head (zero outputs are their identity)")
+        if inputs in CARRIES_CORRECTION and head == "gamma":
+            raise OptionError(f"inputs {inputs!r} needs the gain-gamma or curve head (zero outputs are their identity)")
         self.head = head
         self.inputs = inputs
         self.in_cnv = nn.Conv2d(INPUT_CHANNELS[inputs], hidden, 3, padding=1)
@@ -125,7 +138,15 @@ class GammaNet(nn.Module):
     @property
     def state_names(self) -> tuple[str, ...]:
         """Names of the tensors of ``State``, in order (what an ONNX host feeds back from frame to frame)."""
+        if self.inputs == "delta":
+            return ("h", "c", "z_last", "y_last")
         return ("h", "c", "z_last") if self.inputs == "rgb-prev" else ("h", "c")
+
+    def inputs_for_head(self, head: str) -> str:
+        """The input a network with ``head`` started from this one reads: this one's, unless ``head`` cannot
+        read it (the paper's one-gamma head has no identity output for an input that carries a correction), then
+        the paper's RGB."""
+        return "rgb" if head == "gamma" and self.inputs in CARRIES_CORRECTION else self.inputs
 
     def step(self, frame: Tensor, state: State | None = None) -> tuple[Tensor, State]:
         """One frame. ``frame``: ``(B, 3, H, W)`` in [0, 1] -> the head's output and the new state.
@@ -133,20 +154,33 @@ class GammaNet(nn.Module):
         Head ``gamma``: ``a`` of shape ``(B,)`` (gamma ``1/a``); ``gain-gamma``: raw ``(B, 2)`` outputs.
         """
         cell = (state[0], state[1]) if state is not None else None
-        if self.inputs == "rgb-log":
-            x = torch.cat([frame, log_channels(frame)], dim=1)
-        elif self.inputs == "rgb-prev":
+        last = None
+        if self.inputs in CARRIES_CORRECTION:
             last = state[2] if state is not None else frame.new_zeros(frame.shape[0], HEAD_OUTPUTS[self.head])
-            x = torch.cat([frame, apply_head(frame, last, self.head)], dim=1)
-        else:
-            x = frame
+        x = self._first_input(frame, state, last)
         x = torch.relu(self.bn(self.in_cnv(x)))
         h, c = self.RNNcell(x, cell)
         x = torch.relu(self.rnn_cnv(h))
         z = self.out_linear(x.mean(dim=(2, 3)))
         if self.head == "gamma":
             return torch.relu(z)[:, 0], (h, c)
+        if self.inputs == "delta" and last is not None:
+            z = last + z
+            return z, (h, c, z, apply_head(frame, z, self.head))
         return z, ((h, c, z) if self.inputs == "rgb-prev" else (h, c))
+
+    def _first_input(self, frame: Tensor, state: State | None, last: Tensor | None) -> Tensor:
+        """What ``in_cnv`` reads for ``frame`` (``INPUT_CHANNELS``); ``last``: the previous head outputs."""
+        if self.inputs == "rgb-log":
+            return torch.cat([frame, log_channels(frame)], dim=1)
+        if last is None:
+            return frame
+        kept = apply_head(frame, last, self.head)
+        if self.inputs == "rgb-prev":
+            return torch.cat([frame, kept], dim=1)
+        shown = state[3] if state is not None else torch.zeros_like(frame)
+        seen = (shown.flatten(1).amax(dim=1) > 0).to(frame.dtype)[:, None, None, None]  # 0: no previous frame
+        return torch.cat([kept, DELTA_SCALE * seen * (shown - kept)], dim=1)
 
     def forward(self, frames: Tensor) -> Tensor:
         """A batch of sequences: ``(B, T, 3, H, W)`` in [0, 1] -> outputs ``(B, T)`` (``gamma`` head) or

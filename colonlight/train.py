@@ -66,7 +66,7 @@ class TrainConfig:
     consistency: float = 0.5  # weight of the paper's loss inside "hybrid"
     temporal: float = 0.0  # weight of the error's frame-to-frame change inside the supervised objectives
     exposure_jitter: float = 0.0  # span of the window-constant exposure change of "relative" (0: none)
-    inputs: str = "rgb"  # "rgb" (the paper's), "rgb-log" or "rgb-prev" (colonlight.model)
+    inputs: str = "rgb"  # "rgb" (the paper's), "rgb-log", "rgb-prev" or "delta" (colonlight.model)
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
@@ -127,7 +127,7 @@ def initial_net(cfg: TrainConfig) -> GammaNet:
     """A fresh network, or ``cfg.init``'s weights; a checkpoint with another head gives its backbone (every
     layer but the output layer), so a gain-gamma model can start from a model trained with the paper's loss.
 
-    An ``rgb`` checkpoint started as an ``rgb-log`` or ``rgb-prev`` network keeps its first convolution's RGB
+    An ``rgb`` checkpoint started as an ``rgb-log``, ``rgb-prev`` or ``delta`` network keeps its first convolution's RGB
     weights and gets zero weights for the extra channels, so training starts from exactly the checkpoint's
     corrections and the extra channels are used only as far as they help."""
     if not cfg.init:
@@ -469,6 +469,8 @@ INPUT_TEXT = {
     "rgb": "",
     "rgb-log": "; input: RGB and its log intensity (6 channels)",
     "rgb-prev": "; input: RGB and the frame under the previous frame's correction (6 channels; state h, c, z_last)",
+    "delta": "; input: the frame under the previous frame's correction and its difference from the previous output "
+    "frame (6 channels; state h, c, z_last, y_last); the head's outputs change the last correction (z = z_last + out)",
 }
 
 

@@ -1,6 +1,7 @@
 """The network's inputs beyond the paper's RGB: ``rgb-log`` (the frame beside its log intensity, in which a gain
-change is one shift everywhere) and ``rgb-prev`` (the frame beside itself under the last frame's correction).
-Either starts from an ``rgb`` checkpoint exactly and survives saving and loading."""
+change is one shift everywhere), ``rgb-prev`` (the frame beside itself under the last frame's correction) and
+``delta`` (the frame under the last correction beside its difference from the last output, the head changing the
+last correction). Each starts from an ``rgb`` checkpoint's first convolution and survives saving and loading."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import pytest
 import torch
 
 from colonlight.checkpoint import load_weights, save_weights
+from colonlight.correction import apply_head
 from colonlight.errors import CheckpointError, OptionError
 from colonlight.methods.rnn import RecurrentGammaMethod
 from colonlight.model import LOG_FLOOR, GammaNet, log_channels
@@ -59,7 +61,7 @@ def test_rgb_log_weights_round_trip_and_a_card_that_disagrees_is_refused(tmp_pat
     with pytest.raises(CheckpointError, match="inputs 'rgb', the weights read 6 channels"):
         load_weights(path)
     card_file.write_text(json.dumps({k: v for k, v in card.items() if k != "inputs"}))
-    with pytest.raises(CheckpointError, match="could be rgb-log or rgb-prev; its model card must say which"):
+    with pytest.raises(CheckpointError, match="could be rgb-log or rgb-prev or delta; its model card must say which"):
         load_weights(path)
 
 
@@ -81,14 +83,42 @@ def test_rgb_prev_sees_the_frame_under_the_last_correction_and_carries_it_in_the
         GammaNet(head="gamma", inputs="rgb-prev")
 
 
+def test_a_delta_network_changes_its_last_correction_and_keeps_it_when_its_output_is_zero() -> None:
+    torch.manual_seed(5)
+    net = GammaNet(head="gain-gamma", inputs="delta").eval()
+    clip = torch.rand(2, 7, 3, 16, 16)
+    with torch.no_grad():
+        assert torch.equal(net(clip), torch.zeros(2, 7, 2))  # a zero output layer keeps the identity throughout
+        net.out_linear.bias.fill_(0.1)  # a constant change: the correction grows by it every frame
+        assert torch.allclose(net(clip)[0, :, 0], 0.1 * torch.arange(1, 8).float(), atol=1e-6)
+        net.out_linear.weight.normal_(0.0, 0.5)
+        net.in_cnv.weight[:, 3:].normal_(0.0, 0.5)
+        frame = clip[:, 0]
+        z, state = net.step(frame, None)
+        assert len(state) == 4 and torch.equal(state[2], z)
+        assert torch.allclose(state[3], apply_head(frame, z, "gain-gamma"))
+        # the zero state an ONNX host starts from is the same as no state
+        zeros = tuple(torch.zeros_like(t) for t in state)
+        assert torch.equal(net.step(frame, zeros)[0], z)
+        # the difference from the last output is seen: the same frame after another output moves differently
+        z2, _ = net.step(frame, state)
+        other, _ = net.step(frame, (*state[:3], torch.full_like(state[3], 0.5)))
+    assert not torch.allclose(z2, other)
+    with pytest.raises(OptionError, match="'delta' needs the gain-gamma or curve head"):
+        GammaNet(head="gamma", inputs="delta")
+
+
 def test_the_enhancement_record_names_the_input_only_when_it_is_not_the_papers(tmp_path: Path) -> None:
-    for inputs in ("rgb", "rgb-log", "rgb-prev"):
+    for inputs in ("rgb", "rgb-log", "rgb-prev", "delta"):
         weights = random_head_weights("gain-gamma", tmp_path / f"{inputs}.safetensors", "2" * 64, inputs=inputs)
         params = RecurrentGammaMethod(weights=weights, device="cpu").parameters()
         assert params.get("inputs") == (None if inputs == "rgb" else inputs)
 
 
-@pytest.mark.parametrize(("inputs", "says"), [("rgb", None), ("rgb-log", "log intensity"), ("rgb-prev", "z_last")])
+@pytest.mark.parametrize(
+    ("inputs", "says"),
+    [("rgb", None), ("rgb-log", "log intensity"), ("rgb-prev", "z_last"), ("delta", "z = z_last + out")],
+)
 def test_the_card_says_what_the_network_reads(inputs: str, says: str | None) -> None:
     cfg = TrainConfig(head="gain-gamma", inputs=inputs, objective="relative")
     card = model_card(GammaNet(head="gain-gamma", inputs=inputs), cfg, "n", [], {}, None)
@@ -99,5 +129,13 @@ def test_the_card_says_what_the_network_reads(inputs: str, says: str | None) -> 
 def test_unknown_inputs_are_refused_in_one_line() -> None:
     with pytest.raises(OptionError, match="unknown inputs 'gray'"):
         GammaNet(inputs="gray")
-    with pytest.raises(OptionError, match="inputs must be one of rgb, rgb-log, rgb-prev"):
+    with pytest.raises(OptionError, match="inputs must be one of rgb, rgb-log, rgb-prev, delta"):
         TrainConfig(inputs="gray")
+
+
+def test_the_papers_head_started_from_a_network_that_carries_a_correction_reads_rgb() -> None:
+    for inputs in ("rgb", "rgb-log", "rgb-prev", "delta"):
+        net = GammaNet(head="gain-gamma", inputs=inputs)
+        assert net.inputs_for_head("gain-gamma") == inputs
+        assert net.inputs_for_head("gamma") == ("rgb" if inputs in ("rgb-prev", "delta") else inputs)
+        GammaNet(head="gamma", inputs=net.inputs_for_head("gamma"))  # a network that can be built
