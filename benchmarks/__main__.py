@@ -1,5 +1,5 @@
 """Run the benchmarks (default: all): `python -m benchmarks [input_size] [enhance] [service] [stream] [ws_stream]
-[quality_gate] [objective_landscape] [onnx_step] [model_validation]`.
+[quality_gate] [objective_landscape] [onnx_step] [model_validation] [model_cost]`.
 
 Options after a name go to that benchmark: `python -m benchmarks quality_gate --json gate.json`.
 """
@@ -20,6 +20,7 @@ BENCHMARKS = {
     "objective_landscape": "benchmarks.objective_landscape",
     "onnx_step": "benchmarks.onnx_step",
     "model_validation": "benchmarks.model_validation",
+    "model_cost": "benchmarks.model_cost",
 }
 
 
