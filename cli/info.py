@@ -49,9 +49,9 @@ def info(as_json: bool = typer.Option(False, "--json", help="Machine-readable ou
             epochs = f"epoch {shipped} of {tr.get('epochs')}" if shipped else f"{tr.get('epochs')} epochs"
             stages = len(tr.get("lineage", [])) or 1
             out.print(
-                f"{'':>24}  input {card.get('input_size')} px; {'last stage ' if stages > 1 else ''}trained "
+                f"{'':>24}  input {card.get('input_size')} px; {'last run ' if stages > 1 else ''}trained "
                 f"{epochs} on {tr.get('train_sequences')} sequences ({tr.get('data', 'see card')})"
-                + (f"; {stages} stages in the card's lineage" if stages > 1 else "")
+                + (f"; {stages} runs in the card's lineage" if stages > 1 else "")
             )
     dev = record["device"]
     out.print(f"{'device (auto)':>24}: {dev['auto']}  ({dev['torch_threads']} CPU threads, {dev['cuda_devices']} CUDA)")  # type: ignore[index]

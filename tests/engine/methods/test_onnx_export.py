@@ -118,10 +118,14 @@ def test_sidecar_says_what_a_host_needs(shipped_onnx: Path) -> None:
     assert side["model"]["name"] == "colonlight-rnn" and side["model"]["sha256"] == shipped.sha256
     assert side["onnx"]["sha256"] == hashlib.sha256(out.read_bytes()).hexdigest()
     assert side["colonlight_version"] and side["input_size"] == 48
-    assert [i["name"] for i in side["inputs"]] == ["frame", "h", "c"]
+    # the shipped model reads a change (input delta): its last correction and last output frame are state too
+    state = ["h", "c", "z_last", "y_last"]
+    assert [i["name"] for i in side["inputs"]] == ["frame", *state]
     assert side["inputs"][0]["shape"] == [1, 3, 48, 48] and side["inputs"][1]["shape"] == [1, 32, 48, 48]
+    assert side["inputs"][3]["shape"] == [1, 2] and side["inputs"][4]["shape"] == [1, 3, 48, 48]
+    assert all("zeros" in i["initial"] for i in side["inputs"][1:])
     head_output = "a" if shipped.head == "gamma" else "z"
-    assert [o["name"] for o in side["outputs"]] == [head_output, "h_out", "c_out"]
+    assert [o["name"] for o in side["outputs"]] == [head_output, *(f"{n}_out" for n in state)]
     assert "/ 255" in side["inputs"][0]["normalisation"] and "zeros" in side["inputs"][1]["initial"]
     want_seeds = shipped.seed_frames if shipped.seed_frames is not None else SEED_FRAMES
     assert side["seed_frames"]["count"] == want_seeds
@@ -132,8 +136,14 @@ def test_sidecar_says_what_a_host_needs(shipped_onnx: Path) -> None:
     assert side["correction"]["head"] == shipped.head
     assert side["check"]["onnxruntime_vs_torch_max_abs_diff"] <= TOLERANCE
     session = cpu_session(out)
-    assert [i.name for i in session.get_inputs()] == ["frame", "h", "c"]
-    assert [tuple(i.shape) for i in session.get_inputs()] == [(1, 3, 48, 48), (1, 32, 48, 48), (1, 32, 48, 48)]
+    assert [i.name for i in session.get_inputs()] == ["frame", *state]
+    assert [tuple(i.shape) for i in session.get_inputs()] == [
+        (1, 3, 48, 48),
+        (1, 32, 48, 48),
+        (1, 32, 48, 48),
+        (1, 2),
+        (1, 3, 48, 48),
+    ]
 
 
 class GainGammaNet(GammaNet):
@@ -194,6 +204,7 @@ def test_usage_and_input_errors_are_one_line(tmp_path: Path) -> None:
         ("gain-gamma", 2, "min(1, gain * (v / 255) ^ gamma)", "out = min(1, gain * in ^ gamma)", "rgb-log"),
         ("curve", CURVE_SEGMENTS, "min(1, f(v / 255))", "out = min(1, f(in))", "rgb-prev"),
         ("curve", CURVE_SEGMENTS, "min(1, f(v / 255))", "out = min(1, f(in))", "rgb"),
+        ("gain-gamma", 2, "min(1, gain * (v / 255) ^ gamma)", "out = min(1, gain * in ^ gamma)", "delta"),
     ],
 )
 def test_a_head_with_raw_outputs_exports_as_z_with_its_correction_and_runs_on_onnxruntime(
@@ -208,14 +219,15 @@ def test_a_head_with_raw_outputs_exports_as_z_with_its_correction_and_runs_on_on
     """The gain-gamma and curve heads (random output layers, so the outputs move): one output ``z``, the sidecar's
     rule, table and correction numbers for that head, and the rnn method on ONNX Runtime matching torch; a
     network that reads the log intensity too computes it inside the graph (the host still sends RGB), and one that
-    reads the frame under the last correction carries that correction's outputs as a third state tensor."""
+    reads the frame under the last correction carries that correction's outputs as a third state tensor (and a
+    ``delta`` network the last output frame as a fourth, all zeros at the start like the others)."""
     monkeypatch.setenv("COLONLIGHT_CACHE_DIR", str(tmp_path / "cache"))
     weights = random_head_weights(head, tmp_path / "w.safetensors", "1" * 64, inputs=inputs)
     if inputs != "rgb":
         with torch.no_grad():  # the extra channels must matter for the comparison to test them
             weights.net.in_cnv.weight[:, 3:].normal_(0.0, 0.2)
     record = export_onnx(weights, tmp_path / "w.onnx", size=32)
-    state = ["h", "c", "z_last"] if inputs == "rgb-prev" else ["h", "c"]
+    state = {"rgb-prev": ["h", "c", "z_last"], "delta": ["h", "c", "z_last", "y_last"]}.get(inputs, ["h", "c"])
     assert [o["name"] for o in record["outputs"]] == ["z", *(f"{n}_out" for n in state)]
     assert [i["name"] for i in record["inputs"]] == ["frame", *state]
     assert record["outputs"][0]["shape"] == [1, n_outputs] and record["seed_frames"]["count"] == 0
