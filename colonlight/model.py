@@ -13,9 +13,10 @@ Three heads share that backbone (see :mod:`colonlight.correction` for what their
   cannot;
 * ``curve``: ``linear(32->8)``, the slopes of a monotone tone curve per frame (``correction``).
 
-Three inputs (``INPUT_CHANNELS``), the first convolution's only difference:
+Four inputs (``INPUT_CHANNELS``), the first convolution's only difference (``delta`` also changes the head's
+meaning):
 
-* ``rgb`` (the paper's, every shipped model so far);
+* ``rgb`` (the paper's, every shipped model before session 14's);
 * ``rgb-log``: the frame beside its log intensity scaled to [0, 1] (``log_channels``). In log space a gain change
   is the same shift at every pixel and a gamma change a scale, whereas a scene that brightens (a wall coming
   near) shifts some pixels more than others: the first convolution sees that difference directly instead of
@@ -32,7 +33,7 @@ Three inputs (``INPUT_CHANNELS``), the first convolution's only difference:
   structure rather than a memory task: zero outputs keep the last correction, and where the camera did not
   change the difference is motion alone. The state carries ``z_last`` and the last output frame (``y_last``);
   an all-zero ``y_last`` (the zero state an ONNX host starts with) means "no previous frame". Same heads as
-  ``rgb-prev``. Measured in session 14 (README): it drifts less on undisturbed clips, not enough to ship.
+  ``rgb-prev``. The shipped default's input since session 14 (README, the default model).
 """
 
 from __future__ import annotations

@@ -127,9 +127,10 @@ def initial_net(cfg: TrainConfig) -> GammaNet:
     """A fresh network, or ``cfg.init``'s weights; a checkpoint with another head gives its backbone (every
     layer but the output layer), so a gain-gamma model can start from a model trained with the paper's loss.
 
-    An ``rgb`` checkpoint started as an ``rgb-log``, ``rgb-prev`` or ``delta`` network keeps its first convolution's RGB
-    weights and gets zero weights for the extra channels, so training starts from exactly the checkpoint's
-    corrections and the extra channels are used only as far as they help."""
+    An ``rgb`` checkpoint started as an ``rgb-log``, ``rgb-prev`` or ``delta`` network keeps its first
+    convolution's RGB weights and gets zero weights for the extra channels, so the extra channels are used only as
+    far as they help; ``rgb-log`` and ``rgb-prev`` start from exactly the checkpoint's corrections, ``delta`` from
+    the checkpoint applied as a step-by-step refinement of its own last correction (its head changes it)."""
     if not cfg.init:
         return GammaNet(head=cfg.head, inputs=cfg.inputs)
     start = load_weights(cfg.init).net
