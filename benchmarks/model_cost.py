@@ -7,28 +7,60 @@ interleaved so that a noisy shared machine slows both alike: the shipped default
 (``rgb`` input, the same head, the same size: the baseline), so the ratio says what the default's own input costs
 beyond the network every model shares.
 
+A second table times the resize to the network's input (``network_input``) against the rule it replaced in
+session 15 (a Gaussian pyramid, then an area average: the baseline) and one exact area average of the whole frame,
+and says how far each moves the default's gains and gammas from that exact average's, over frames of one held-out
+clip rendered at the full size (cached between runs).
+
 Run: ``python -m benchmarks model_cost [--frames 200] [--weights W]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import os
 import sys
 import time
+from collections.abc import Callable
+from typing import Any
 
+import cv2
 import numpy as np
 import torch
 
 from colonlight.checkpoint import LoadedWeights, load_weights
-from colonlight.methods.rnn import RecurrentGammaMethod
+from colonlight.correction import gain_gamma_values
+from colonlight.limits import DEFAULT_MODEL_SIZE
+from colonlight.methods.rnn import PRESAMPLE, RecurrentGammaMethod, network_input, to_tensor
 from colonlight.model import GammaNet
 
-from .common import markdown_table
+from .common import clip_cache, markdown_table
 
 WIDTH, HEIGHT = 1350, 1080
 BUDGET_MS = 5.0
 BASELINE = "baseline: rgb input, same head and size"
+PREVIOUS = "default as session 14 ran it (pyramid resize, contiguous weights)"
+RESIZE_BASELINE = "baseline: Gaussian pyramid, then area (before session 15)"
+RESIZE_CLIP_SEED, RESIZE_CLIP_FRAMES = 810000, 12  # a held-out-family clip, rendered at WIDTH x HEIGHT
+
+
+def _pyramid_then_area(frame: np.ndarray, size: int) -> np.ndarray:
+    """The rule before session 15: halved with ``cv2.pyrDown`` while the shorter side is >= 4x the target."""
+    while min(frame.shape[:2]) >= 4 * size:
+        frame = cv2.pyrDown(frame)
+    return cv2.resize(frame, (size, size), interpolation=cv2.INTER_AREA)
+
+
+def _one_area_average(frame: np.ndarray, size: int) -> np.ndarray:
+    return cv2.resize(frame, (size, size), interpolation=cv2.INTER_AREA)
+
+
+RESIZES: dict[str, Callable[[np.ndarray, int], np.ndarray]] = {
+    f"shipped: bilinear to {PRESAMPLE}x the size, then area": network_input,
+    RESIZE_BASELINE: _pyramid_then_area,
+    "one area average of the whole frame (the reference)": _one_area_average,
+}
 
 
 def _baseline(weights: LoadedWeights) -> LoadedWeights:
@@ -45,20 +77,46 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--weights", default=None, help="weights to time (default: the shipped one)")
     args = parser.parse_args(argv if argv is not None else [])
     torch.set_num_threads(1)  # as `colonlight enhance` runs the network
+    cv2.setNumThreads(1)  # the resize alone, as `colonlight enhance` runs it beside decoding
     shipped = load_weights(args.weights)
-    models = {"default": shipped, BASELINE: _baseline(shipped)}
-    # the network step (resize included: the model cost, as earlier measurements gave it) and the whole push
-    # (the correction's table applied to the full frame as well), each on its own stream
-    steps = {name: RecurrentGammaMethod(weights=w, device="cpu").stream() for name, w in models.items()}
-    pushes = {name: RecurrentGammaMethod(weights=w, device="cpu").stream() for name, w in models.items()}
     rng = np.random.default_rng(0)
     base = (rng.random((HEIGHT // 8, WIDTH // 8, 3)) * 200 + 20).astype(np.uint8)
     frame = np.ascontiguousarray(np.kron(base, np.ones((8, 8, 1), np.uint8))[:HEIGHT, :WIDTH])
-    step_ms: dict[str, list[float]] = {name: [] for name in models}
-    push_ms: dict[str, list[float]] = {name: [] for name in models}
-    for i in range(args.frames + 10):
-        for name in models:
-            for stream, out in ((steps[name].predict, step_ms), (pushes[name].push, push_ms)):
+    load = os.getloadavg()[0]
+    return _cost_table(shipped, frame, args.frames, load) + "\n\n" + _resize_table(shipped, frame, args.frames, load)
+
+
+def _previous_step(weights: LoadedWeights) -> Callable[[np.ndarray], object]:
+    """The default's step as session 14 ran it: the Gaussian-pyramid resize and contiguous (NCHW) weights."""
+    net = copy.deepcopy(weights.net).to(memory_format=torch.contiguous_format).eval()
+    size = weights.input_size or DEFAULT_MODEL_SIZE
+    state: list[Any] = [None]
+
+    def predict(frame: np.ndarray) -> object:
+        with torch.inference_mode():
+            out, state[0] = net.step(to_tensor(_pyramid_then_area(frame, size), torch.device("cpu")), state[0])
+        return out
+
+    return predict
+
+
+def _cost_table(shipped: LoadedWeights, frame: np.ndarray, frames: int, load: float) -> str:
+    """The network step (resize included: the model cost, as earlier measurements gave it) and the whole push
+    (the correction's table applied to the full frame as well), each on its own stream, models interleaved; and
+    the default's step as session 14 ran it (step only)."""
+    models = {"default": shipped, BASELINE: _baseline(shipped)}
+    steps: dict[str, Callable[[np.ndarray], object]] = {
+        name: RecurrentGammaMethod(weights=w, device="cpu").stream().predict for name, w in models.items()
+    }
+    steps[PREVIOUS] = _previous_step(shipped)
+    pushes = {name: RecurrentGammaMethod(weights=w, device="cpu").stream().push for name, w in models.items()}
+    step_ms: dict[str, list[float]] = {name: [] for name in steps}
+    push_ms: dict[str, list[float]] = {name: [] for name in pushes}
+    for i in range(frames + 10):
+        for name in steps:
+            for stream, out in ((steps[name], step_ms), (pushes.get(name), push_ms)):
+                if stream is None:
+                    continue
                 start = time.perf_counter()
                 stream(frame)
                 if i >= 10:  # warm-up frames are not timed
@@ -70,15 +128,14 @@ def main(argv: list[str] | None = None) -> str:
             name,
             f"{step[name]:.2f}",
             f"{step[name] / step[BASELINE]:.2f}x",
-            f"{push[name]:.2f}",
-            f"{push[name] / push[BASELINE]:.2f}x",
+            f"{push[name]:.2f}" if name in push else "-",
+            f"{push[name] / push[BASELINE]:.2f}x" if name in push else "-",
             f"<= {BUDGET_MS:g} ms: {'met' if step[name] <= BUDGET_MS else 'not met'}",
         ]
-        for name in models
+        for name in steps
     ]
-    load = os.getloadavg()[0]
     return (
-        f"## Model cost per frame: {WIDTH}x{HEIGHT} input, 1 torch thread, median of {args.frames} "
+        f"## Model cost per frame: {WIDTH}x{HEIGHT} input, 1 torch thread, median of {frames} "
         f"(load avg {load:.1f})\n\n"
         + markdown_table(
             [
@@ -88,6 +145,75 @@ def main(argv: list[str] | None = None) -> str:
                 "with the correction applied, ms/frame",
                 "vs baseline",
                 "target (network step)",
+            ],
+            rows,
+        )
+    )
+
+
+def _hd_clip() -> list[np.ndarray]:
+    """Frames of one held-out-family clip rendered at the full size (the resize's subject: real texture, noise)."""
+    from colonlight.synth import SynthConfig, generate_clip
+
+    def render() -> list[np.ndarray]:
+        cfg = SynthConfig.sample(
+            np.random.default_rng(RESIZE_CLIP_SEED),
+            split="heldout",
+            width=WIDTH,
+            height=HEIGHT,
+            n_frames=RESIZE_CLIP_FRAMES,
+        )
+        return [f.image for f in generate_clip(cfg, seed=RESIZE_CLIP_SEED)]
+
+    return clip_cache(f"model-cost-{RESIZE_CLIP_SEED}-{WIDTH}x{HEIGHT}-{RESIZE_CLIP_FRAMES}", render)
+
+
+def _corrections(weights: LoadedWeights, inputs: list[np.ndarray]) -> np.ndarray:
+    """``(gain, gamma)`` per frame of a gain-gamma network over ``inputs`` (already at its size), state carried."""
+    state = None
+    out = []
+    with torch.inference_mode():
+        for x in inputs:
+            z, state = weights.net.step(to_tensor(x, torch.device("cpu")), state)
+            out.append(gain_gamma_values(*z.reshape(-1).tolist()))
+    return np.array(out)
+
+
+def _resize_table(shipped: LoadedWeights, frame: np.ndarray, frames: int, load: float) -> str:
+    """Each resize rule's time (interleaved, medians) and how far it moves the default's corrections."""
+    size = shipped.input_size or DEFAULT_MODEL_SIZE
+    times: dict[str, list[float]] = {name: [] for name in RESIZES}
+    for i in range(frames + 10):
+        for name, rule in RESIZES.items():
+            start = time.perf_counter()
+            rule(frame, size)
+            if i >= 10:
+                times[name].append((time.perf_counter() - start) * 1000)
+    ms = {name: float(np.median(t)) for name, t in times.items()}
+    clip = _hd_clip()
+    small = {name: [rule(f, size) for f in clip] for name, rule in RESIZES.items()}
+    reference = list(RESIZES)[-1]
+    rows: list[list[object]] = []
+    for name in RESIZES:
+        levels = np.mean(
+            [np.abs(a.astype(float) - b).mean() for a, b in zip(small[name], small[reference], strict=True)]
+        )
+        moved = ["-", "-"]  # the gain and gamma columns describe the gain-gamma head (the default's)
+        if shipped.head == "gain-gamma":
+            diff = np.abs(_corrections(shipped, small[name]) - _corrections(shipped, small[reference])).max(axis=0)
+            moved = [f"{diff[0]:.4f}", f"{diff[1]:.4f}"]
+        rows.append([name, f"{ms[name]:.2f}", f"{ms[name] / ms[RESIZE_BASELINE]:.2f}x", f"{levels:.2f}", *moved])
+    return (
+        f"## Resize to the network's {size}x{size} input from {WIDTH}x{HEIGHT}: median of {frames} "
+        f"(load avg {load:.1f}); accuracy over {len(clip)} frames of held-out clip {RESIZE_CLIP_SEED}\n\n"
+        + markdown_table(
+            [
+                "resize",
+                "ms/frame",
+                "vs baseline",
+                "mean |input - reference|, 8-bit levels",
+                "max |gain - reference's|",
+                "max |gamma - reference's|",
             ],
             rows,
         )

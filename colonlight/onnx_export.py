@@ -23,7 +23,7 @@ from . import __version__
 from .atomic import write_bytes_atomic, write_json_atomic
 from .checkpoint import LoadedWeights
 from .correction import CURVE_KNOTS, CURVE_SLOPE_MAX, LOG_GAIN_SPAN, LOG_GAMMA_SPAN, SLOPE_OFFSET
-from .methods.rnn import CURVE_SUMMARY_AT, GAIN_MAX, GAIN_MIN, GAMMA_MAX, GAMMA_MIN, SEED_FRAMES
+from .methods.rnn import CURVE_SUMMARY_AT, GAIN_MAX, GAIN_MIN, GAMMA_MAX, GAMMA_MIN, PRESAMPLE, SEED_FRAMES
 from .onnx_step import ExportError, StepSignature, compare_with_torch, cpu_session, export_model_bytes
 
 SIDECAR_FORMAT = "colonlight-onnx-step"
@@ -91,9 +91,11 @@ def sidecar_record(
                 "dtype": "float32",
                 "layout": "NCHW, channels R, G, B",
                 "normalisation": "value / 255: uint8 0..255 -> float 0..1; no mean or std",
-                "resize": f"the full frame reduced to {sig.size}x{sig.size}: halved with a Gaussian pyramid "
-                f"(cv::pyrDown) while its shorter side is at least {4 * sig.size}, then area-averaged "
-                "(cv::resize, INTER_AREA); the aspect ratio is not kept",
+                "resize": f"the full frame reduced to {sig.size}x{sig.size}: if its shorter side is over "
+                f"{PRESAMPLE * sig.size}, first resampled to {PRESAMPLE * sig.size}x{PRESAMPLE * sig.size} "
+                "(cv::resize, INTER_LINEAR), then area-averaged (cv::resize, INTER_AREA); the aspect ratio is "
+                "not kept",
+                "presample": PRESAMPLE,
             },
             *(
                 {

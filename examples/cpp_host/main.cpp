@@ -159,12 +159,14 @@ struct Rule {
     }
 };
 
-// The copy of the frame the network sees: halved with a Gaussian pyramid while its shorter side is at least
-// 4 * size, then area-averaged to size x size (the sidecar's "resize"); a frame of that size already is used as is.
-cv::Mat network_input(const cv::Mat& rgb, int size) {
+// The copy of the frame the network sees (the sidecar's "resize"): a frame whose shorter side is over
+// presample * size is first resampled bilinearly to that square, then area-averaged to size x size; a frame of
+// that size already is used as is.
+cv::Mat network_input(const cv::Mat& rgb, int size, int presample) {
     if (rgb.rows == size && rgb.cols == size) return rgb;
     cv::Mat small = rgb;
-    while (std::min(small.rows, small.cols) >= 4 * size) cv::pyrDown(small, small);
+    if (std::min(small.rows, small.cols) > presample * size)
+        cv::resize(small, small, cv::Size(presample * size, presample * size), 0, 0, cv::INTER_LINEAR);
     cv::resize(small, small, cv::Size(size, size), 0, 0, cv::INTER_AREA);
     return small;
 }
@@ -189,6 +191,7 @@ json read_json(const std::string& path) {
 int run(const std::string& model, int width, int height, const std::string& out_path) {
     const json side = read_json(model + ".json");
     const int size = side.at("input_size").get<int>();
+    const int presample = side.at("inputs").at(0).at("presample").get<int>();
     const long seeds = side.at("seed_frames").at("count").get<long>();
     const Rule rule = Rule::from_sidecar(side);
 
@@ -232,7 +235,7 @@ int run(const std::string& model, int width, int height, const std::string& out_
             throw Failure("standard input ended inside frame " + std::to_string(index) + " (not " +
                           std::to_string(width) + "x" + std::to_string(height) + " RGB24?)");
         cv::Mat rgb(height, width, CV_8UC3, buffer.data());
-        cv::Mat x = network_input(rgb, size);
+        cv::Mat x = network_input(rgb, size, presample);
         std::vector<float>& frame = in_data[0];  // NCHW, channels R G B, value / 255
         for (int y = 0; y < size; ++y)
             for (int c0 = 0; c0 < size; ++c0)

@@ -20,6 +20,7 @@ pytest.importorskip("onnxscript", reason="the export extra (onnxscript) is not i
 from colonlight.checkpoint import LoadedWeights, load_weights  # noqa: E402
 from colonlight.curves import gain_gamma_lut, gamma_lut  # noqa: E402
 from colonlight.methods.rnn import (  # noqa: E402
+    PRESAMPLE,
     RecurrentGammaMethod,
     clamp_gain_gamma,
     clamp_gamma,
@@ -32,7 +33,10 @@ from colonlight.video import VideoWriter  # noqa: E402
 from ...networks import random_head_weights  # noqa: E402
 
 HOST_DIR = Path(__file__).resolve().parents[3] / "examples" / "cpp_host"
-WIDTH, HEIGHT, FRAMES = 256, 208, 30  # >= 4 x 48 on the short side: the host halves it once, then area-resizes
+WIDTH, HEIGHT, FRAMES = 256, 208, 30
+#: The random heads' network size: 208 > 8 x 24, so their frames take the host's bilinear presample before the
+#: area average, while the shipped and authors' (48 px) are area-averaged at once: both branches of the resize
+RANDOM_HEAD_SIZE = 24
 TOLERANCE = 1e-5
 BUILD_TIMEOUT_S = 600  # compiling against OpenCV and ONNX Runtime on a loaded 2-core machine
 
@@ -89,7 +93,7 @@ def _weights(which: str, tmp_path: Path, request: pytest.FixtureRequest) -> tupl
         return weights, int(weights.card["input_size"])
     if which == "authors":
         return load_weights(request.getfixturevalue("authors_checkpoint")), 48
-    return random_head_weights(which, tmp_path / f"{which}.safetensors", "3" * 64), 32
+    return random_head_weights(which, tmp_path / f"{which}.safetensors", "3" * 64), RANDOM_HEAD_SIZE
 
 
 def _run_host(host: Path, onnx: Path, frames: list[np.ndarray], out: Path) -> list[dict[str, object]]:
@@ -118,6 +122,7 @@ def test_the_cpp_host_matches_torch_frame_by_frame(
     which: str, host: Path, clip: list[np.ndarray], tmp_path: Path, request: pytest.FixtureRequest
 ) -> None:
     weights, size = _weights(which, tmp_path, request)
+    assert (min(WIDTH, HEIGHT) > PRESAMPLE * size) == (size == RANDOM_HEAD_SIZE)  # which resize branch it takes
     head = weights.head
     onnx = tmp_path / "model.onnx"
     export_onnx(weights, onnx, size=size)
