@@ -25,6 +25,7 @@ from colonlight.methods.rnn import (  # noqa: E402
     GAIN_MIN,
     GAMMA_MAX,
     GAMMA_MIN,
+    PRESAMPLE,
     SEED_FRAMES,
     RecurrentGammaMethod,
     network_input,
@@ -235,6 +236,7 @@ def test_a_head_with_raw_outputs_exports_as_z_with_its_correction_and_runs_on_on
     assert build in record["lut"]["build"] and apply in record["lut"]["apply"] and "^ gamma on" not in apply
     assert record["correction"]["head"] == head and record["correction"]["gamma_range"] == [GAMMA_MIN, GAMMA_MAX]
     assert record["network_inputs"] == inputs
+    assert record["inputs"][0]["presample"] == PRESAMPLE and f"{PRESAMPLE * 32}" in record["inputs"][0]["resize"]
     if head == "curve":
         assert record["gamma"]["knots"] == record["correction"]["knots"] == list(CURVE_KNOTS)
     else:
