@@ -191,7 +191,10 @@ json read_json(const std::string& path) {
 int run(const std::string& model, int width, int height, const std::string& out_path) {
     const json side = read_json(model + ".json");
     const int size = side.at("input_size").get<int>();
-    const int presample = side.at("inputs").at(0).at("presample").get<int>();
+    const json& frame_input = side.at("inputs").at(0);
+    if (!frame_input.contains("presample"))  // sidecars before colonlight's session 15 described a pyramid resize
+        throw Failure(model + ".json: no \"presample\" in its frame input (an older export); re-export the model");
+    const int presample = frame_input.at("presample").get<int>();
     const long seeds = side.at("seed_frames").at("count").get<long>();
     const Rule rule = Rule::from_sidecar(side);
 

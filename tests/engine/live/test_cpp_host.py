@@ -26,7 +26,7 @@ from colonlight.methods.rnn import (  # noqa: E402
     clamp_gamma,
     curve_correction,
 )
-from colonlight.onnx_export import export_onnx  # noqa: E402
+from colonlight.onnx_export import export_onnx, onnx_sidecar_path  # noqa: E402
 from colonlight.sources import clip_frames  # noqa: E402
 from colonlight.video import VideoWriter  # noqa: E402
 
@@ -165,3 +165,13 @@ def test_the_cpp_host_fails_in_one_line(host: Path, tmp_path: Path) -> None:
     assert usage.returncode == 2 and "usage: colonlight_host" in usage.stderr
     missing = subprocess.run([str(host), str(tmp_path / "none.onnx"), "8", "8"], capture_output=True, text=True)
     assert missing.returncode == 1 and missing.stderr.count("\n") == 1 and "none.onnx.json" in missing.stderr
+    # a sidecar from before the presample resize (session 15) is refused, not read with another resize
+    onnx = tmp_path / "old.onnx"
+    export_onnx(load_weights(), onnx, size=8)
+    sidecar = onnx_sidecar_path(onnx)
+    side = json.loads(sidecar.read_text())
+    del side["inputs"][0]["presample"]
+    sidecar.write_text(json.dumps(side))
+    old = subprocess.run([str(host), str(onnx), "8", "8"], capture_output=True, text=True, input="")
+    assert old.returncode == 1 and old.stderr.count("\n") == 1
+    assert "old.onnx.json" in old.stderr and "presample" in old.stderr and "re-export" in old.stderr
