@@ -5,8 +5,10 @@ tracked fraction with per-frame brightness fixed (the paper's RNNSLAM setting) a
 size training never used (160x128). The first clip of every four is steady (scored only for darkening); the others
 start with two undisturbed frames.
 
-Run: ``python -m benchmarks model_validation [--clips 8] [--weights W ...] [--methods he,clahe]`` (``none`` and
-``clean`` always; ``--methods`` adds built-in baselines, to see whether a candidate is ahead of them).
+Run: ``python -m benchmarks model_validation [--clips 8] [--weights W ...] [--methods he,clahe]`` (``none``,
+``clean`` and the three oracles unless ``--no-references``: the ceilings of one global correction per frame, of
+the default's own gain-gamma family and of one gamma; ``--methods`` adds built-in baselines, to see whether a
+candidate is ahead of them).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import sys
 
 import numpy as np
 
+from colonlight.evaluation.oracles import CLEAN_LABEL, REFERENCE_LABELS, oracle_frames
 from colonlight.evaluation.tracker import TrackerSettings, track_clip
 from colonlight.methods import create_method
 from colonlight.metrics import clip_lighting, content_masks
@@ -63,19 +66,21 @@ def _track(frames: list[np.ndarray], clip: list, cfg: SynthConfig, brightness: s
 
 
 def score(label: str, weights: str | None, clips: list, baseline: str | None = None) -> list[str]:  # type: ignore[type-arg]
-    # weights None: the shipped default (the none and clean rows need no method); baseline: a built-in method
+    # weights None: the shipped default (the none, clean and oracle rows need no method); baseline: a built-in one
     if baseline is not None:
         method = create_method(baseline)
     else:
-        method = None if label in ("none", "clean") else create_method("rnn", weights=weights, device="cpu")
+        method = None if label in ("none", *REFERENCE_LABELS) else create_method("rnn", weights=weights, device="cpu")
     psnr_in, psnr_out, fl_out, fl_clean, dark = [], [], [], [], []
     track: dict[str, list[tuple[bool, float]]] = {"fixed": [], "affine": []}
     for over, cfg, clip in clips:
         inp, clean = [f.image for f in clip], [f.clean for f in clip]
         if label == "none":
             out = inp
-        elif label == "clean":
+        elif label == CLEAN_LABEL:
             out = clean
+        elif label in REFERENCE_LABELS:
+            out = oracle_frames(inp, clean, label)[0]
         else:
             assert method is not None
             stream = method.stream()
@@ -106,14 +111,16 @@ def main(argv: list[str] | None = None) -> str:
         "--weights", action="append", default=[], help="checkpoints to score (default: the shipped one)"
     )
     parser.add_argument(
-        "--no-references", action="store_true", help="skip the none and clean rows (they do not change between runs)"
+        "--no-references",
+        action="store_true",
+        help="skip the none, clean and oracle rows (they do not change between runs)",
     )
     parser.add_argument(
         "--methods", default="", help="built-in baselines to score too, comma-separated (e.g. he,clahe)"
     )
     args = parser.parse_args(argv or [])
     clips = validation_clips(args.clips)
-    rows = [] if args.no_references else [score("none", None, clips), score("clean", None, clips)]
+    rows = [] if args.no_references else [score(label, None, clips) for label in ("none", *REFERENCE_LABELS)]
     for name in filter(None, args.methods.split(",")):
         rows.append(score(name, None, clips, baseline=name))
     for w in args.weights or [None]:

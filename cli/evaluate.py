@@ -189,8 +189,8 @@ def evaluate(
         bool,
         typer.Option(
             "--oracles/--no-oracles",
-            help="On clips with clean frames, add the rows clean, oracle-curve and oracle-gamma (ceilings for a "
-            "global per-frame correction) and the breakdown of the input's failures.",
+            help="On clips with clean frames, add the rows clean, oracle-curve, oracle-gain-gamma and oracle-gamma "
+            "(ceilings for a global per-frame correction) and the breakdown of the input's failures.",
         ),
     ] = True,
     fps: Annotated[

@@ -6,6 +6,9 @@ clean frame by the least-squares best
 * ``oracle-gamma``: single gamma, applied as the product applies one (``round(255 * (v / 255) ** gamma)``
   through a 256-entry table, :func:`colonlight.curves.gamma_lut`), gamma within the product's clamp range
   ``[GAMMA_MIN, GAMMA_MAX]``;
+* ``oracle-gain-gamma``: gain and gamma, ``round(255 * min(1, gain * (v / 255) ** gamma))`` as the gain-gamma
+  head applies them (:func:`colonlight.curves.gain_gamma_lut`), within the product's clamp ranges: the ceiling
+  of the shipped default's own family, between the other two;
 * ``oracle-curve``: monotone non-decreasing tone curve, one 256-entry table for all three channels.
 
 Both are fitted to every sample (all pixels, all channels) of the frame. They are ceilings, not methods: they
@@ -17,23 +20,26 @@ Why least squares over the 256 input levels: the cost of a table ``L`` is ``sum_
 scores any table in 256 operations. The best curve is then the weighted isotonic regression of the mean clean
 value per input level (weights ``n_v``; ``scipy.optimize.isotonic_regression``, pool-adjacent-violators), and the
 best gamma a search over a log-spaced grid, refined around the best grid point (the rounded table makes the cost
-piecewise constant in gamma, so a derivative-based search would stall on a plateau).
+piecewise constant in gamma, so a derivative-based search would stall on a plateau); the best gain and gamma the
+same search over a log-spaced grid of both.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 
-from ..curves import apply_lut, gamma_lut
-from ..methods.rnn import GAMMA_MAX, GAMMA_MIN
+from ..curves import apply_lut, gain_gamma_lut, gamma_lut
+from ..methods.rnn import GAIN_MAX, GAIN_MIN, GAMMA_MAX, GAMMA_MIN
 
-#: Labels of the reference rows, in table order: the clean frames themselves, then the two oracles.
-CLEAN_LABEL, CURVE_LABEL, GAMMA_LABEL = "clean", "oracle-curve", "oracle-gamma"
-REFERENCE_LABELS = (CLEAN_LABEL, CURVE_LABEL, GAMMA_LABEL)
+#: Labels of the reference rows, in table order: the clean frames themselves, then the oracles, widest first.
+CLEAN_LABEL, CURVE_LABEL, GAIN_GAMMA_LABEL, GAMMA_LABEL = "clean", "oracle-curve", "oracle-gain-gamma", "oracle-gamma"
+REFERENCE_LABELS = (CLEAN_LABEL, CURVE_LABEL, GAIN_GAMMA_LABEL, GAMMA_LABEL)
 _LEVELS = np.arange(256, dtype=np.float64)
 _COARSE, _FINE = 513, 257  # grid points over the whole log-gamma range, then around the best one
+_COARSE_2D, _FINE_2D = 65, 33  # the same per axis for gain and gamma together
 
 
 @dataclass(frozen=True)
@@ -89,6 +95,37 @@ def oracle_gamma(frame: np.ndarray, clean: np.ndarray) -> float:
     return float(fine[best[len(best) // 2]])  # the middle of the best plateau
 
 
+def _gain_gamma_tables(gains: np.ndarray, gammas: np.ndarray) -> np.ndarray:
+    """``(len(gammas), len(gains), 256)`` tables of ``round(255 * min(1, gain * (v / 255) ** gamma))``."""
+    powers = (_LEVELS / 255.0)[None, None, :] ** gammas[:, None, None]
+    tables: np.ndarray = np.rint(255.0 * np.minimum(1.0, gains[None, :, None] * powers))
+    return tables
+
+
+def _log_axis(lo: float, hi: float, n: int) -> np.ndarray:
+    return np.exp(np.linspace(np.log(lo), np.log(hi), n))
+
+
+@cache
+def _gain_gamma_grid() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    gains, gammas = _log_axis(GAIN_MIN, GAIN_MAX, _COARSE_2D), _log_axis(GAMMA_MIN, GAMMA_MAX, _COARSE_2D)
+    return gains, gammas, _gain_gamma_tables(gains, gammas)
+
+
+def oracle_gain_gamma(frame: np.ndarray, clean: np.ndarray) -> tuple[float, float]:
+    """The ``(gain, gamma)`` within the product's clamp ranges whose table maps ``frame`` closest to ``clean``
+    (least squares): the best grid point of both, refined on a finer grid around it."""
+    stats = level_stats(frame, clean)
+    gains, gammas, tables = _gain_gamma_grid()
+    i, j = (int(k) for k in np.unravel_index(int(np.argmin(stats.cost(tables))), tables.shape[:2]))
+    last = _COARSE_2D - 1
+    fine_gammas = _log_axis(gammas[max(i - 1, 0)], gammas[min(i + 1, last)], _FINE_2D)
+    fine_gains = _log_axis(gains[max(j - 1, 0)], gains[min(j + 1, last)], _FINE_2D)
+    cost = stats.cost(_gain_gamma_tables(fine_gains, fine_gammas))
+    i, j = (int(k) for k in np.unravel_index(int(np.argmin(cost)), cost.shape))
+    return float(fine_gains[j]), float(fine_gammas[i])
+
+
 def oracle_curve(frame: np.ndarray, clean: np.ndarray) -> np.ndarray:
     """The monotone non-decreasing 256-entry uint8 table mapping ``frame`` closest to ``clean`` (least squares).
 
@@ -109,8 +146,8 @@ def oracle_curve(frame: np.ndarray, clean: np.ndarray) -> np.ndarray:
 def oracle_frames(
     frames: list[np.ndarray], clean: list[np.ndarray], kind: str
 ) -> tuple[list[np.ndarray], list[float | None]]:
-    """Every frame corrected by its own oracle (``kind``: ``oracle-gamma`` or ``oracle-curve``), and the gamma
-    per frame (``None`` for curves)."""
+    """Every frame corrected by its own oracle (``kind``: one of the oracle labels), and the gamma per frame
+    (``None`` for curves)."""
     if len(frames) != len(clean):
         raise ValueError(f"{len(frames)} frames but {len(clean)} clean frames")
     out: list[np.ndarray] = []
@@ -120,22 +157,28 @@ def oracle_frames(
             g = oracle_gamma(f, c)
             out.append(apply_lut(f, gamma_lut(g)))
             gammas.append(g)
+        elif kind == GAIN_GAMMA_LABEL:
+            gain, g = oracle_gain_gamma(f, c)
+            out.append(apply_lut(f, gain_gamma_lut(gain, g)))
+            gammas.append(g)
         elif kind == CURVE_LABEL:
             out.append(apply_lut(f, oracle_curve(f, c)))
             gammas.append(None)
         else:
-            raise ValueError(f"unknown oracle {kind!r}; choose {GAMMA_LABEL} or {CURVE_LABEL}")
+            raise ValueError(f"unknown oracle {kind!r}; choose from {', '.join(REFERENCE_LABELS[1:])}")
     return out, gammas
 
 
 __all__ = [
     "CLEAN_LABEL",
     "CURVE_LABEL",
+    "GAIN_GAMMA_LABEL",
     "GAMMA_LABEL",
     "REFERENCE_LABELS",
     "LevelStats",
     "level_stats",
     "oracle_curve",
     "oracle_frames",
+    "oracle_gain_gamma",
     "oracle_gamma",
 ]

@@ -97,13 +97,15 @@ DEFINITIONS: list[tuple[str, str]] = [
         ),
     ),
     (
-        "clean, oracle-curve, oracle-gamma",
+        "clean, oracle-curve, oracle-gain-gamma, oracle-gamma",
         (
             "reference rows on clips with clean frames. clean: the clean frames themselves. oracle-curve: "
             "each frame mapped by the least-squares best monotone 256-entry tone curve from input to clean "
-            "(weighted isotonic regression). oracle-gamma: the least-squares best single gamma per frame, "
-            "applied as the product applies one (256-entry LUT, within its clamp range). They see the answer: "
-            "ceilings for any method that applies one global correction per frame."
+            "(weighted isotonic regression). oracle-gain-gamma: the least-squares best gain and gamma per frame "
+            "(the default model's own family, min(1, gain * v ** gamma)). oracle-gamma: the least-squares best "
+            "single gamma per frame. Both are applied as the product applies them (256-entry LUT, within its "
+            "clamp ranges). They see the answer: oracle-curve is the ceiling for any method that applies one "
+            "global correction per frame, the other two for their own family."
         ),
     ),
     (

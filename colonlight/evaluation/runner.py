@@ -1,8 +1,9 @@
 """Run methods on clips and measure them: lighting consistency, exposure, tracking, COLMAP, cost.
 
 Tracking runs once per brightness setting (``fixed``: the paper's, a = b = 0; ``affine``: fitted; see
-:mod:`.tracker`); COLMAP does not depend on it and runs once. Clips with clean frames also get three reference
-rows (:mod:`.oracles`): the clean frames themselves, ``oracle-curve`` and ``oracle-gamma``, and the frames the
+:mod:`.tracker`); COLMAP does not depend on it and runs once. Clips with clean frames also get four reference
+rows (:mod:`.oracles`): the clean frames themselves, ``oracle-curve``, ``oracle-gain-gamma`` and ``oracle-gamma``
+(the ceilings of three families of one global correction per frame), and the frames the
 input fails while the clean frames pass are classified and checked for rescues (:mod:`.breakdown`).
 
 Per clip, what depends only on the input is computed once (content masks, the correspondences used for the
@@ -45,7 +46,7 @@ from .consistency import (
     flow_correspondences,
     motion_compensated_ssim,
 )
-from .oracles import CLEAN_LABEL, CURVE_LABEL, GAMMA_LABEL, REFERENCE_LABELS, oracle_frames
+from .oracles import CLEAN_LABEL, CURVE_LABEL, GAIN_GAMMA_LABEL, GAMMA_LABEL, REFERENCE_LABELS, oracle_frames
 from .records import ClipRecord, EvaluationResult, MethodClipResult
 from .summary import INPUT_NAME, failure_breakdown, input_label, nanmean, nanmedian, summarize
 from .tracker import BRIGHTNESS_MODES, TrackerSettings
@@ -299,8 +300,8 @@ def evaluate_clip(
     """Score every method on one loaded clip; returns its record and (if ``keep_strip``) frame thumbnails.
 
     ``brightness``: the tracker's brightness settings to track in (``tracker_settings.brightness`` is replaced
-    by each). ``oracles``: when the clip has clean frames, add the reference rows (clean, oracle-curve,
-    oracle-gamma) before the methods and the breakdown of the input's failures. ``cache``: reuse tracking and
+    by each). ``oracles``: when the clip has clean frames, add the reference rows (clean and the three oracles)
+    before the methods and the breakdown of the input's failures. ``cache``: reuse tracking and
     COLMAP results of byte-identical frames (see :mod:`.cache`)."""
     modes = _modes(brightness)
     masks = content_masks(clip.frames)
@@ -430,9 +431,9 @@ def evaluate_clips(
     (another method added, an interrupted run finished) computes only what is new.
     ``strips``: how many clips keep before/after thumbnails for the report. ``tracker_settings``: a
     :class:`colonlight.evaluation.tracker.TrackerSettings` (default thresholds when ``None``); ``brightness``:
-    the settings tracked in (``"both"``, or any of ``fixed``/``affine``). ``oracles``: reference rows (clean,
-    oracle-curve, oracle-gamma) on clips with clean frames; without any such clip they are listed as skipped
-    with the reason. ``threads``:
+    the settings tracked in (``"both"``, or any of ``fixed``/``affine``). ``oracles``: reference rows (clean and
+    the three oracles) on clips with clean frames; without any such clip they are listed as skipped with the
+    reason. ``threads``:
     torch and OpenCV threads while evaluating (restored afterwards; ``None`` leaves them). One by default, so
     that every method's cost is measured alike and OpenMP spinning on a busy machine does not inflate it
     (the 64-px network took 270 ms/frame with 2 threads beside other jobs, 12 ms with one).
@@ -447,21 +448,25 @@ def evaluate_clips(
 
 
 def _reference_descriptions() -> list[dict[str, Any]]:
-    """The reference rows as ``EvaluationResult.methods`` entries (table order: clean, oracle-curve, gamma)."""
-    from ..methods.rnn import GAMMA_MAX, GAMMA_MIN
+    """The reference rows as ``EvaluationResult.methods`` entries (table order: clean, then the oracles)."""
+    from ..methods.rnn import GAIN_MAX, GAIN_MIN, GAMMA_MAX, GAMMA_MIN
 
     what = {
         CLEAN_LABEL: "the clean frames themselves (no lighting disturbance)",
         CURVE_LABEL: "per frame, the least-squares monotone 256-entry tone curve mapping input to clean",
+        GAIN_GAMMA_LABEL: "per frame, the least-squares gain and gamma (product's LUT) mapping input to clean",
         GAMMA_LABEL: "per frame, the least-squares gamma (product's LUT) mapping input to clean",
+    }
+    ranges = {
+        GAIN_GAMMA_LABEL: {"gain_range": [GAIN_MIN, GAIN_MAX], "gamma_range": [GAMMA_MIN, GAMMA_MAX]},
+        GAMMA_LABEL: {"gamma_range": [GAMMA_MIN, GAMMA_MAX]},
     }
     return [
         {
             "label": label,
             "name": label,
             "options": {},
-            "parameters": {"reference": True, "description": what[label]}
-            | ({"gamma_range": [GAMMA_MIN, GAMMA_MAX]} if label == GAMMA_LABEL else {}),
+            "parameters": {"reference": True, "description": what[label]} | ranges.get(label, {}),
             "model": None,
         }
         for label in REFERENCE_LABELS

@@ -41,7 +41,7 @@ def test_folder_with_a_video_and_a_corrupt_file(tmp_path: Path) -> None:
     res = good["results"]
     assert set(res) == {"none", "he", "rnn (ours)"}
     assert res["none"]["tracking"]["fixed"]["applicable"] is False  # no depth on a user's clip
-    assert set(record["skipped_methods"]) == {"clean", "oracle-curve", "oracle-gamma"}  # no clean frames
+    assert set(record["skipped_methods"]) == {"clean", "oracle-curve", "oracle-gain-gamma", "oracle-gamma"}  # no clean
     assert res["none"]["colmap"]["total"] == 10  # COLMAP still runs (intrinsics estimated)
     assert record["provenance"]["command"].startswith("colonlight evaluate ")
 
@@ -79,12 +79,12 @@ def test_rerun_reuses_tracking_and_colmap_and_adds_only_the_new_method(tmp_path:
     first = runner.invoke(app, [*base, "--methods", "none,he"])
     assert first.exit_code == 0, first.output
     one = json.loads((out / "results.json").read_text())
-    # 2 methods + 3 reference rows (clean, oracle-curve, oracle-gamma), each tracked in 2 settings + COLMAP once
-    assert one["settings"]["cache"]["reused"] == 0 and one["settings"]["cache"]["computed"] == 15
+    # 2 methods + 4 reference rows (clean and 3 oracles), each tracked in 2 settings + COLMAP once
+    assert one["settings"]["cache"]["reused"] == 0 and one["settings"]["cache"]["computed"] == 18
     second = runner.invoke(app, [*base, "--methods", "none,he,clahe"])
     assert second.exit_code == 0, second.output
     two = json.loads((out / "results.json").read_text())
-    assert two["settings"]["cache"] == {"folder": str(out / "cache"), "reused": 15, "computed": 3}
+    assert two["settings"]["cache"] == {"folder": str(out / "cache"), "reused": 18, "computed": 3}
     for label in ("none", "he"):
         a, b = one["clips"][0]["results"][label], two["clips"][0]["results"][label]
         assert a["colmap"] == b["colmap"] and a["tracking"] == b["tracking"]
@@ -107,7 +107,7 @@ def test_brightness_both_fixed_and_bad(tmp_path: Path) -> None:
     record = json.loads((out / "results.json").read_text())
     assert record["settings"]["brightness"] == ["fixed", "affine"]
     rows = {r["method"]: r for r in record["summary"]}
-    assert list(rows) == ["clean", "oracle-curve", "oracle-gamma", "none", "rnn (ours)"]
+    assert list(rows) == ["clean", "oracle-curve", "oracle-gain-gamma", "oracle-gamma", "none", "rnn (ours)"]
     for m in ("fixed", "affine"):
         assert rows["none"][f"track_success_{m}"] in (0, 1) and 0 <= rows["none"][f"tracked_fraction_{m}"] <= 1
         assert f"gap_closed_tracked_{m}" in rows["rnn (ours)"] and f"rescue_rate_{m}" in rows["rnn (ours)"]

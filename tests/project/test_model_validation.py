@@ -21,3 +21,5 @@ def test_validation_scores_the_shipped_default_without_weights() -> None:
     assert psnr_in == float(none[1].split(" -> ")[0]) and psnr_out != psnr_in  # the model ran and changed the frames
     he = score("he", None, clips, baseline="he")
     assert he[0] == "he" and he[1] != shipped[1] and he[1].split(" -> ")[0] == none[1].split(" -> ")[0]
+    oracle = score("oracle-gain-gamma", None, clips)  # a ceiling row: fitted to the clean frames, so it restores
+    assert oracle[0] == "oracle-gain-gamma" and float(oracle[1].split(" -> ")[1]) > psnr_in + 3

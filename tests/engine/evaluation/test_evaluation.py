@@ -373,20 +373,22 @@ def test_oracles_gap_closed_and_failure_breakdown_on_a_known_gain_jump(box: Eval
     clip = _gain_jump(box)
     specs = [EvalMethod.of("none", "none"), EvalMethod.of("gamma", "gamma", gamma=0.7)]
     result = evaluate_clips([clip], specs, colmap=False)
-    assert result.labels == ["clean", "oracle-curve", "oracle-gamma", "none", "gamma"]
+    assert result.labels == ["clean", "oracle-curve", "oracle-gain-gamma", "oracle-gamma", "none", "gamma"]
     (record,) = result.clips
-    for label in ("clean", "oracle-curve", "oracle-gamma"):
+    for label in ("clean", "oracle-curve", "oracle-gain-gamma", "oracle-gamma"):
         t = record.results[label].tracking or {}
         assert t["fixed"]["success"] and t["affine"]["success"], label
     gammas = record.results["oracle-gamma"].gammas or []
     assert gammas[:6] == pytest.approx([1.0] * 6, abs=0.01) and gammas[6:] == pytest.approx([0.7] * 6, abs=0.02)
+    # a pure gain jump: the gain-gamma oracle undoes it with the gain and keeps gamma 1
+    assert record.results["oracle-gain-gamma"].gammas == pytest.approx([1.0] * 12, abs=0.02)
     failures = record.input_failures
     assert [f["frame"] for f in failures] == list(range(6, 12))
     assert all(f["brightness"] == "fixed" for f in failures)  # affine: the input tracks every frame
     first = failures[0]
     assert first["cause"] == "gain jump" and first["changes"]["gain_ratio"] == pytest.approx(0.7)
     assert [f["cause"] for f in failures[1:]] == ["after a failure"] * 5
-    assert all({"oracle-curve", "oracle-gamma"} <= set(f["rescued_by"]) for f in failures)
+    assert all({"oracle-curve", "oracle-gain-gamma", "oracle-gamma"} <= set(f["rescued_by"]) for f in failures)
     assert [f["frame"] for f in failures if "gamma" in f["rescued_by"]] == [10, 11]
 
     rows = {r["method"]: r for r in summarize(result)}
@@ -409,7 +411,7 @@ def test_oracles_gap_closed_and_failure_breakdown_on_a_known_gain_jump(box: Eval
 def test_reference_rows_are_skipped_with_a_reason_without_clean_frames(box: EvalClip) -> None:
     result = evaluate_clips([box], [EvalMethod.of("none", "none")], colmap=False, brightness="fixed")
     assert result.labels == ["none"] and result.settings["brightness"] == ["fixed"]
-    assert set(result.skipped_methods) == {"clean", "oracle-curve", "oracle-gamma"}
+    assert set(result.skipped_methods) == {"clean", "oracle-curve", "oracle-gain-gamma", "oracle-gamma"}
     assert "clean frames" in result.skipped_methods["clean"]
     (row,) = summarize(result)
     assert row["track_success_fixed"] == 1 and row["track_success_affine"] is None
@@ -465,7 +467,7 @@ def test_every_method_through_the_runner(all_methods_run: tuple) -> None:
             assert "\n" not in result.skipped_methods[name]
     (clip,) = result.clips
     assert set(clip.results) == set(result.labels)
-    assert result.labels[:3] == ["clean", "oracle-curve", "oracle-gamma"]  # the clip has clean frames
+    assert result.labels[:4] == ["clean", "oracle-curve", "oracle-gain-gamma", "oracle-gamma"]  # it has clean frames
     assert {"none", "he", "clahe", "agcwd", "deflicker", "gamma", "rnn (ours)"} <= set(result.labels)
     for label, r in clip.results.items():
         assert r.error is None, (label, r.error)
@@ -509,8 +511,9 @@ def test_report_files_are_complete_and_self_contained(all_methods_run: tuple) ->
     assert len(paths["csv"].read_text().splitlines()) == 1 + len(result.labels)
     page = paths["html"].read_text()
     assert page.count("data:image/png;base64,") >= 2  # success bars + the clip's luminance/gamma plot
-    # before/after strips: the input, the clean frames, then each method but `none` (the input itself)
-    assert page.count("data:image/jpeg;base64,") == 1 + 1 + len(result.labels) - 4
+    # before/after strips: the input, the clean frames, then each method but `none` (the input itself) and the
+    # oracles
+    assert page.count("data:image/jpeg;base64,") == 1 + 1 + len(result.labels) - 5
     assert "<h2>Tracking</h2>" in page and "## Tracking" in md
     for text in ("fixed: gap closed", "affine: tracked", "DSO with mode=2"):
         assert text in page and text in md

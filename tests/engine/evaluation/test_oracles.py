@@ -6,16 +6,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from colonlight.curves import apply_lut, gamma_lut
+from colonlight.curves import apply_lut, gain_gamma_lut, gamma_lut
 from colonlight.evaluation.oracles import (
     CURVE_LABEL,
+    GAIN_GAMMA_LABEL,
     GAMMA_LABEL,
     level_stats,
     oracle_curve,
     oracle_frames,
+    oracle_gain_gamma,
     oracle_gamma,
 )
-from colonlight.methods.rnn import GAMMA_MAX, GAMMA_MIN
+from colonlight.methods.rnn import GAIN_MAX, GAIN_MIN, GAMMA_MAX, GAMMA_MIN
 
 
 @pytest.fixture(scope="module")
@@ -57,6 +59,39 @@ def test_oracle_gamma_stays_in_the_products_clamp_range(clean: np.ndarray) -> No
         assert GAMMA_MIN <= g <= GAMMA_MAX
 
 
+@pytest.mark.parametrize(("gain", "gamma"), [(0.6, 1.4), (0.7, 0.75)])
+def test_oracle_gain_gamma_recovers_the_inverse_of_a_known_gain_and_gamma(
+    clean: np.ndarray, gain: float, gamma: float
+) -> None:
+    """input = g * clean ** k (a recorder's exposure and contrast change), so the best gain and gamma back are
+    g ** (-1/k) and 1/k; one gamma cannot undo both, so the oracle gamma does much worse on the same frame. (Both
+    cases darken: the clean frame has saturated samples, and a brightened frame loses what clipping hides.)"""
+    v = np.arange(256) / 255.0
+    frame = apply_lut(clean, np.rint(255 * np.minimum(1.0, gain * v**gamma)).astype(np.uint8))
+    found_gain, found_gamma = oracle_gain_gamma(frame, clean)
+    assert found_gamma == pytest.approx(1 / gamma, rel=0.03)
+    assert found_gain == pytest.approx(gain ** (-1 / gamma), rel=0.03)
+    out = apply_lut(frame, gain_gamma_lut(found_gain, found_gamma))
+    assert _error(out, clean) < 0.6  # rounding of the two tables only
+    assert _error(frame, clean) > 10 * _error(out, clean)
+    # least squares: no gain and gamma of a grid over the clamp ranges (nor the true inverse) does better
+    stats = level_stats(frame, clean)
+    best = stats.cost(gain_gamma_lut(found_gain, found_gamma).astype(np.float64))
+    truth = stats.cost(gain_gamma_lut(gain ** (-1 / gamma), 1 / gamma).astype(np.float64))
+    assert best <= truth + 1e-9
+    for g in np.exp(np.linspace(np.log(GAIN_MIN), np.log(GAIN_MAX), 25)):
+        for k in np.exp(np.linspace(np.log(GAMMA_MIN), np.log(GAMMA_MAX), 25)):
+            assert best <= stats.cost(gain_gamma_lut(g, k).astype(np.float64)) + 1e-9
+    gamma_only = apply_lut(frame, gamma_lut(oracle_gamma(frame, clean)))
+    assert _error(gamma_only, clean) > 3 * _error(out, clean)
+
+
+def test_oracle_gain_gamma_of_an_undisturbed_frame_is_the_identity(clean: np.ndarray) -> None:
+    gain, gamma = oracle_gain_gamma(clean, clean)
+    assert np.array_equal(apply_lut(clean, gain_gamma_lut(gain, gamma)), clean)
+    assert gain == pytest.approx(1.0, abs=0.01) and gamma == pytest.approx(1.0, abs=0.01)
+
+
 def test_oracle_curve_recovers_a_monotone_non_gamma_curve(clean: np.ndarray) -> None:
     """An S-curve v - 0.1 sin(2 pi v) (monotone, no gamma fits it): the curve oracle inverts it, up to the
     levels the 8-bit S-curve merged (where its slope is below 1), which no table can separate again."""
@@ -96,6 +131,9 @@ def test_oracle_curve_is_isotonic_least_squares_and_fills_unseen_levels() -> Non
 def test_oracle_frames_and_bad_input(clean: np.ndarray) -> None:
     frames = [apply_lut(clean, gamma_lut(0.8)), apply_lut(clean, gamma_lut(1.25))]
     out, gammas = oracle_frames(frames, [clean, clean], GAMMA_LABEL)
+    assert gammas[0] == pytest.approx(1.25, rel=0.01) and gammas[1] == pytest.approx(0.8, rel=0.01)
+    assert all(_error(o, clean) < 0.4 for o in out)
+    out, gammas = oracle_frames(frames, [clean, clean], GAIN_GAMMA_LABEL)
     assert gammas[0] == pytest.approx(1.25, rel=0.01) and gammas[1] == pytest.approx(0.8, rel=0.01)
     assert all(_error(o, clean) < 0.4 for o in out)
     out, gammas = oracle_frames(frames, [clean, clean], CURVE_LABEL)
