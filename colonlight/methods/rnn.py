@@ -8,6 +8,8 @@ unchanged with gamma 1.0.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import math
 from pathlib import Path
 from typing import Any
@@ -179,7 +181,10 @@ class RecurrentGammaMethod(Method):
         runtime: str = "torch",
     ) -> None:
         self.device = resolve_device(device)
-        self.weights = weights if isinstance(weights, LoadedWeights) else load_weights(weights)
+        if isinstance(weights, LoadedWeights):  # a copy of the caller's net: moving and re-laying it is ours
+            self.weights = dataclasses.replace(weights, net=copy.deepcopy(weights.net))
+        else:
+            self.weights = load_weights(weights)
         self.weights.net.to(self.device).eval()
         _channels_last(self.weights.net)
         self.model_size = parse_model_size(model_size, trained_at=self.weights.input_size)

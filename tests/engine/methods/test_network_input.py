@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import torch
 
 from colonlight.methods.rnn import PRESAMPLE, network_input
 
@@ -43,3 +44,19 @@ def test_a_frame_at_the_size_or_full_resolution_is_used_as_it_is() -> None:
     assert network_input(frame, SIZE) is frame
     big = _textured(100, 120, noise=5)
     assert network_input(big, None) is big
+
+
+def test_the_method_leaves_the_callers_weights_as_they_were() -> None:
+    """The method lays its convolution weights out channels-last for speed; a caller's own LoadedWeights (shared,
+    say, by an export or a second method) keeps its layout and is not the method's net."""
+    from colonlight.checkpoint import load_weights
+    from colonlight.methods.rnn import RecurrentGammaMethod
+
+    weights = load_weights(None)
+    before = {k: v.clone() for k, v in weights.net.state_dict().items()}
+    method = RecurrentGammaMethod(weights=weights, device="cpu")
+    assert method.weights.net is not weights.net and method.weights.sha256 == weights.sha256
+    conv = method.weights.net.in_cnv.weight
+    assert conv.is_contiguous(memory_format=torch.channels_last) and not conv.is_contiguous()
+    for name, value in weights.net.state_dict().items():
+        assert value.is_contiguous() and torch.equal(value, before[name]), name
