@@ -22,8 +22,9 @@ import copy
 import os
 import sys
 import time
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Hashable
+from functools import partial
+from typing import Any, TypeVar
 
 import cv2
 import numpy as np
@@ -36,6 +37,8 @@ from colonlight.methods.rnn import PRESAMPLE, RecurrentGammaMethod, network_inpu
 from colonlight.model import GammaNet
 
 from .common import clip_cache, markdown_table
+
+K = TypeVar("K", bound=Hashable)
 
 WIDTH, HEIGHT = 1350, 1080
 BUDGET_MS = 5.0
@@ -100,6 +103,19 @@ def _previous_step(weights: LoadedWeights) -> Callable[[np.ndarray], object]:
     return predict
 
 
+def _interleaved_ms(calls: dict[K, Callable[[], object]], frames: int, warmup: int = 10) -> dict[K, float]:
+    """Median ms of each call over ``frames`` rounds, every round calling each once in order (so a busy moment
+    of a shared machine falls on all of them alike), after ``warmup`` untimed rounds."""
+    times: dict[K, list[float]] = {key: [] for key in calls}
+    for i in range(warmup + frames):
+        for key, call in calls.items():
+            start = time.perf_counter()
+            call()
+            if i >= warmup:
+                times[key].append((time.perf_counter() - start) * 1000)
+    return {key: float(np.median(t)) for key, t in times.items()}
+
+
 def _cost_table(shipped: LoadedWeights, frame: np.ndarray, frames: int, load: float) -> str:
     """The network step (resize included: the model cost, as earlier measurements gave it) and the whole push
     (the correction's table applied to the full frame as well), each on its own stream, models interleaved; and
@@ -110,19 +126,14 @@ def _cost_table(shipped: LoadedWeights, frame: np.ndarray, frames: int, load: fl
     }
     steps[PREVIOUS] = _previous_step(shipped)
     pushes = {name: RecurrentGammaMethod(weights=w, device="cpu").stream().push for name, w in models.items()}
-    step_ms: dict[str, list[float]] = {name: [] for name in steps}
-    push_ms: dict[str, list[float]] = {name: [] for name in pushes}
-    for i in range(frames + 10):
-        for name in steps:
-            for stream, out in ((steps[name], step_ms), (pushes.get(name), push_ms)):
-                if stream is None:
-                    continue
-                start = time.perf_counter()
-                stream(frame)
-                if i >= 10:  # warm-up frames are not timed
-                    out[name].append((time.perf_counter() - start) * 1000)
-    step = {name: float(np.median(t)) for name, t in step_ms.items()}
-    push = {name: float(np.median(t)) for name, t in push_ms.items()}
+    calls: dict[tuple[str, str], Callable[[], object]] = {}
+    for name in steps:  # each model's step, then its push: one model's runs side by side in every round
+        calls[("step", name)] = partial(steps[name], frame)
+        if name in pushes:
+            calls[("push", name)] = partial(pushes[name], frame)
+    ms = _interleaved_ms(calls, frames)
+    step = {name: t for (kind, name), t in ms.items() if kind == "step"}
+    push = {name: t for (kind, name), t in ms.items() if kind == "push"}
     rows: list[list[object]] = [
         [
             name,
@@ -182,14 +193,7 @@ def _corrections(weights: LoadedWeights, inputs: list[np.ndarray]) -> np.ndarray
 def _resize_table(shipped: LoadedWeights, frame: np.ndarray, frames: int, load: float) -> str:
     """Each resize rule's time (interleaved, medians) and how far it moves the default's corrections."""
     size = shipped.input_size or DEFAULT_MODEL_SIZE
-    times: dict[str, list[float]] = {name: [] for name in RESIZES}
-    for i in range(frames + 10):
-        for name, rule in RESIZES.items():
-            start = time.perf_counter()
-            rule(frame, size)
-            if i >= 10:
-                times[name].append((time.perf_counter() - start) * 1000)
-    ms = {name: float(np.median(t)) for name, t in times.items()}
+    ms = _interleaved_ms({name: partial(rule, frame, size) for name, rule in RESIZES.items()}, frames)
     clip = _hd_clip()
     small = {name: [rule(f, size) for f in clip] for name, rule in RESIZES.items()}
     reference = list(RESIZES)[-1]
