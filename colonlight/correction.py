@@ -111,3 +111,30 @@ def curve_values(z: Sequence[float]) -> tuple[np.ndarray, bool]:
     slopes = np.minimum(slopes, CURVE_SLOPE_MAX)
     values = np.concatenate([[0.0], np.cumsum(slopes * np.diff(CURVE_KNOTS))])
     return values, clamped
+
+
+#: Raw gain-gamma outputs the map below is fitted over: ``|z0| <= 0.1`` (gamma 0.82-1.22) and ``|z1| <= 0.3``
+#: (gain 0.70-1.43), about twice the spread the shipped model's outputs have over its training clips.
+GAIN_GAMMA_FIT_SPAN = (0.1, 0.3)
+
+
+def gain_gamma_to_curve_map() -> np.ndarray:
+    """``(CURVE_SEGMENTS, 2)`` matrix ``A``: ``A @ z`` is the curve head's raw output whose tone curve is closest to
+    the gain-gamma head's for raw output ``z`` (least squares of the curve's raw slopes over a grid of ``z``).
+
+    Why: a curve head started from a gain-gamma network's output layer mapped by ``A`` starts with that network's
+    corrections (about 0.8 grey levels off, mean over typical outputs) instead of the identity, so a fine-tune
+    begins where the gain-gamma model is instead of relearning it (session 16). Linear and without an intercept
+    (zero is the identity of both heads), so it also holds for ``delta`` networks, whose outputs add up."""
+    span0, span1 = GAIN_GAMMA_FIT_SPAN
+    z0, z1 = np.meshgrid(np.linspace(-span0, span0, 21), np.linspace(-span1, span1, 21))
+    z = np.stack([z0.ravel(), z1.ravel()], axis=1)
+    gamma = np.exp(LOG_GAMMA_SPAN * np.tanh(z[:, 0]))
+    gain = np.exp(LOG_GAIN_SPAN * np.tanh(z[:, 1]))
+    knots = np.asarray(CURVE_KNOTS)
+    values = gain[:, None] * knots[None, :] ** gamma[:, None]  # the gain-gamma curve at the knots, uncapped
+    slopes = np.clip(np.diff(values, axis=1) / np.diff(knots)[None, :], 1e-3, CURVE_SLOPE_MAX)
+    raw = np.log(np.expm1(slopes)) - SLOPE_OFFSET  # softplus's inverse
+    solution, *_ = np.linalg.lstsq(z, raw, rcond=None)
+    mapping: np.ndarray = solution.T
+    return mapping

@@ -33,7 +33,7 @@ from safetensors.torch import load_file, save_file
 
 from .atomic import atomic_path, write_json_atomic
 from .checkpoint import load_weights, save_weights
-from .correction import apply_gain_gamma, apply_head, correct
+from .correction import apply_gain_gamma, apply_head, correct, gain_gamma_to_curve_map
 from .errors import InputError, OptionError
 from .limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE
 from .model import HEAD_OUTPUTS, INPUT_CHANNELS, GammaNet, parameter_count
@@ -125,7 +125,9 @@ def load_clip_array(path: Path, size: int, fps: float | None) -> np.ndarray:
 
 def initial_net(cfg: TrainConfig) -> GammaNet:
     """A fresh network, or ``cfg.init``'s weights; a checkpoint with another head gives its backbone (every
-    layer but the output layer), so a gain-gamma model can start from a model trained with the paper's loss.
+    layer but the output layer), so a gain-gamma model can start from a model trained with the paper's loss. A
+    curve head started from a gain-gamma checkpoint also gets its output layer, mapped to curves
+    (:func:`colonlight.correction.gain_gamma_to_curve_map`): it starts with the checkpoint's corrections.
 
     An ``rgb`` checkpoint started as an ``rgb-log``, ``rgb-prev`` or ``delta`` network keeps its first
     convolution's RGB weights and gets zero weights for the extra channels, so the extra channels are used only as
@@ -139,6 +141,10 @@ def initial_net(cfg: TrainConfig) -> GammaNet:
     net = GammaNet(head=cfg.head, inputs=cfg.inputs)
     state = start.state_dict()
     keep = {k: v for k, v in state.items() if not k.startswith("out_linear.") or start.head == cfg.head}
+    if start.head == "gain-gamma" and cfg.head == "curve":  # start from the same corrections, as curves
+        mapping = torch.from_numpy(gain_gamma_to_curve_map()).to(state["out_linear.weight"].dtype)
+        keep["out_linear.weight"] = mapping @ state["out_linear.weight"]
+        keep["out_linear.bias"] = mapping @ state["out_linear.bias"]
     if start.inputs != cfg.inputs:
         weight = torch.zeros_like(net.in_cnv.weight)
         shared = min(weight.shape[1], state["in_cnv.weight"].shape[1])

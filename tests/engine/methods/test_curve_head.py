@@ -173,3 +173,28 @@ def test_training_with_the_curve_head_and_the_temporal_term_learns_and_is_record
     assert res.card["head"] == "curve" and "monotone tone curve" in res.card["architecture"]
     assert res.history[-1].train_loss < res.history[0].train_loss
     assert load_weights(res.weights).net.out_linear.out_features == CURVE_SEGMENTS
+
+
+def test_a_curve_head_started_from_the_gain_gamma_default_starts_with_its_corrections() -> None:
+    """``--head curve --init default``: the output layer is the default's, mapped to curves, so on a real clip
+    the new network's corrected frames are within about a grey level of the default's from the first step on
+    (a zero output layer would start at the identity, as far off as the default's corrections are large)."""
+    from colonlight.checkpoint import DEFAULT_WEIGHTS
+    from colonlight.correction import apply_head, gain_gamma_to_curve_map
+    from colonlight.synth import SynthConfig, generate_clip
+    from colonlight.train import initial_net
+
+    mapping = gain_gamma_to_curve_map()
+    assert mapping.shape == (CURVE_SEGMENTS, 2) and np.all(np.isfinite(mapping))
+    shipped = load_weights(DEFAULT_WEIGHTS).net
+    assert shipped.head == "gain-gamma"
+    curve = initial_net(TrainConfig(head="curve", inputs=shipped.inputs, init=str(DEFAULT_WEIGHTS))).eval()
+    assert curve.head == "curve" and curve.inputs == shipped.inputs
+    cfg = SynthConfig.sample(np.random.default_rng(31), split="heldout", width=48, height=48, n_frames=24)
+    frames = torch.stack([torch.from_numpy(f.image).permute(2, 0, 1).float() / 255 for f in generate_clip(cfg, 31)])
+    with torch.inference_mode():
+        ours = apply_head(frames, curve(frames[None])[0], "curve")
+        theirs = apply_head(frames, shipped(frames[None])[0], "gain-gamma")
+    off = float((ours - theirs).abs().mean() * 255)
+    moved = float((theirs - frames).abs().mean() * 255)
+    assert off < 1.5 and moved > 4 * off, (off, moved)
