@@ -11,7 +11,7 @@ clean frame by the least-squares best
   of the shipped default's own family, between the other two;
 * ``oracle-curve``: monotone non-decreasing tone curve, one 256-entry table for all three channels.
 
-Both are fitted to every sample (all pixels, all channels) of the frame. They are ceilings, not methods: they
+Each is fitted to every sample (all pixels, all channels) of the frame. They are ceilings, not methods: they
 look at the answer. A method's share of the input -> ``oracle-curve`` gap in tracking says how much of what
 a per-frame global correction can fix it fixes.
 
