@@ -43,7 +43,7 @@ from .jobs import (  # noqa: F401 - the job types and run_clip, re-exported (the
 from .limits import available_cores
 from .methods import Method
 from .outdir import output_lock
-from .pipeline import GAMMAS_FILE, ClipOptions
+from .pipeline import GAMMAS_FILE, ClipOptions, remove_unfinished_video
 from .tuning import network_threads, tune_for_clips
 from .worker_process import die_with_parent
 
@@ -176,12 +176,14 @@ def _run_in_worker(job: ClipJob, spec: MethodSpec, opts: ClipOptions, overwrite:
 
 
 def _remove_temporaries_of(jobs: Sequence[ClipJob]) -> None:
-    """After an interrupt: delete the temporaries of the clips that may have been running (a complete clip,
-    which has its ``gammas.json``, was not running: its folder is not searched)."""
+    """After an interrupt: delete the temporaries, and a video published before its ``gammas.json``, of the clips
+    that may have been running (a complete clip, which has its ``gammas.json``, was not running: its folder is not
+    searched). A worker stopped mid-clip does not clean up itself."""
     for job in jobs:
         out_dir = Path(job.out_dir)
         if out_dir.is_dir() and not (out_dir / GAMMAS_FILE).exists():
             remove_stale_temporaries(out_dir)
+            remove_unfinished_video(out_dir)
 
 
 def run_batch(

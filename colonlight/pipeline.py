@@ -288,7 +288,8 @@ def enhance_clip(
     Raises :class:`InputError` (one line naming the file and the cause) for unusable input. A clip that fails,
     at its first frame or part way (a frame size change, a write error, a bug), leaves nothing half-written: the
     frames and video it had published are removed (:func:`discard_partial_outputs`), with the folders it made.
-    An interrupt (Ctrl-C, SIGTERM) keeps the frames already on disk, which are whole; a rerun redoes the clip.
+    An interrupt (Ctrl-C, SIGTERM) keeps the frames already on disk, which are whole, and removes the video of a
+    clip it stopped before its ``gammas.json``; a rerun redoes the clip.
     """
     created: list[Path] = []  # folders this call creates (out_dir, its missing parents): removed if left empty
     folder = Path(out_dir)
@@ -303,9 +304,19 @@ def enhance_clip(
             _remove_if_empty([Path(out_dir) / FRAMES_DIR, *created])
         raise
     except BaseException:
+        remove_unfinished_video(Path(out_dir))
         if created:
             _remove_if_empty([Path(out_dir) / FRAMES_DIR, *created])
         raise
+
+
+def remove_unfinished_video(out_dir: Path) -> None:
+    """After an interrupt: remove the video of a clip without its ``gammas.json``. Its frames are kept (whole, a
+    gap-free prefix), but the video is published just before ``gammas.json``, and an interrupt can land between
+    the two; a video appears only with its complete clip."""
+    if not (out_dir / GAMMAS_FILE).exists():
+        with contextlib.suppress(OSError):
+            (out_dir / VIDEO_FILE).unlink(missing_ok=True)
 
 
 def discard_partial_outputs(out_dir: Path) -> None:

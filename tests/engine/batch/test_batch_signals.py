@@ -260,3 +260,20 @@ def test_a_clip_that_kills_its_worker_fails_alone(long_clips: Path, tmp_path: Pa
     manifest = json.loads((out / "manifest.json").read_text())
     assert {c["clip"]: c["status"] for c in manifest["clips"]} == {"c0": "done", "c1": "failed", "c2": "done"}
     assert not [p for p in out.rglob("*") if TMP_MARK in p.name]
+
+
+def test_a_video_published_before_an_interrupt_stopped_its_clip_is_removed(tmp_path: Path) -> None:
+    """The video is published just before gammas.json; an interrupt between the two (a real race under load, seen
+    in CI) must not leave a video whose clip counts as incomplete. The state that race leaves is made here with
+    real outputs (a finished clip whose gammas.json is then taken away), and cleaned the way an interrupt does."""
+    from colonlight.methods import create_method
+    from colonlight.pipeline import GAMMAS_FILE, VIDEO_FILE, ClipOptions, enhance_clip, remove_unfinished_video
+
+    out = tmp_path / "out"
+    enhance_clip(make_clip(tmp_path / "c.mp4", n_frames=12), out, create_method("gamma"), ClipOptions(video=True))
+    assert (out / VIDEO_FILE).is_file() and (out / GAMMAS_FILE).is_file()
+    remove_unfinished_video(out)  # a complete clip keeps its video
+    assert (out / VIDEO_FILE).is_file()
+    (out / GAMMAS_FILE).unlink()
+    remove_unfinished_video(out)
+    assert not (out / VIDEO_FILE).exists() and any((out / "frames").iterdir())  # the whole frames stay
