@@ -129,8 +129,7 @@ def gain_gamma_to_curve_map() -> np.ndarray:
     span0, span1 = GAIN_GAMMA_FIT_SPAN
     z0, z1 = np.meshgrid(np.linspace(-span0, span0, 21), np.linspace(-span1, span1, 21))
     z = np.stack([z0.ravel(), z1.ravel()], axis=1)
-    gamma = np.exp(LOG_GAMMA_SPAN * np.tanh(z[:, 0]))
-    gain = np.exp(LOG_GAIN_SPAN * np.tanh(z[:, 1]))
+    gain, gamma = (t.numpy() for t in gain_gamma_from_raw(torch.from_numpy(z)))
     knots = np.asarray(CURVE_KNOTS)
     values = gain[:, None] * knots[None, :] ** gamma[:, None]  # the gain-gamma curve at the knots, uncapped
     slopes = np.clip(np.diff(values, axis=1) / np.diff(knots)[None, :], 1e-3, CURVE_SLOPE_MAX)

@@ -74,8 +74,12 @@ def level_stats(frame: np.ndarray, clean: np.ndarray) -> LevelStats:
     )
 
 
+def _log_axis(lo: float, hi: float, n: int) -> np.ndarray:
+    return np.exp(np.linspace(np.log(lo), np.log(hi), n))
+
+
 def _gamma_grid(lo: float, hi: float, n: int) -> tuple[np.ndarray, np.ndarray]:
-    gammas = np.exp(np.linspace(np.log(lo), np.log(hi), n))
+    gammas = _log_axis(lo, hi, n)
     luts = np.rint(255.0 * (_LEVELS / 255.0)[None, :] ** gammas[:, None])
     return gammas, luts
 
@@ -100,10 +104,6 @@ def _gain_gamma_tables(gains: np.ndarray, gammas: np.ndarray) -> np.ndarray:
     powers = (_LEVELS / 255.0)[None, None, :] ** gammas[:, None, None]
     tables: np.ndarray = np.rint(255.0 * np.minimum(1.0, gains[None, :, None] * powers))
     return tables
-
-
-def _log_axis(lo: float, hi: float, n: int) -> np.ndarray:
-    return np.exp(np.linspace(np.log(lo), np.log(hi), n))
 
 
 @cache
