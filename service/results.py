@@ -51,7 +51,7 @@ def label_source(outcome: ClipOutcome, job: ClipJob, label: str) -> ClipOutcome:
         gammas.unlink(missing_ok=True)
         full = is_disk_full(exc)
         return ClipOutcome(
-            outcome.clip,
+            outcome.name,
             outcome.source,
             "failed",
             seconds=outcome.seconds,
