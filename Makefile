@@ -46,7 +46,7 @@ demo: install
 	$(BIN)/colonlight demo
 
 # The gates before the suite, each failing `make test` on any finding: ruff's lint and format over the whole tree,
-# mypy strict on the engine and the CLI (colonlight/, cli/; both configured in pyproject.toml).
+# mypy strict on the engine, the CLI and the service (colonlight/, cli/, service/; configured in pyproject.toml).
 lint: install-test
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .

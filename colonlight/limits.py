@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping
+from typing import Final
 
 #: Largest frame accepted (width x height), checked from the stream header before any frame is decoded.
 #: 4096 x 4096 admits UHD and DCI 4K video (8.3 and 8.8 Mpx) with room to spare; an 8000 x 8000 "bomb" is refused.
@@ -32,7 +33,7 @@ DEFAULT_FPS = 18.0
 DEFAULT_METHOD = "rnn"
 #: The image format of a clip's enhanced frames when none is given (``enhance --format``, a job's ``format``); a live
 #: stream's default differs (``jpg``: at 1080p a PNG costs too much CPU for real time).
-DEFAULT_FRAME_FORMAT = "png"
+DEFAULT_FRAME_FORMAT: Final = "png"  # Final: typed as the literal, which the requests' Literal["png", "jpg"] needs
 #: JPEG quality of enhanced frames when none is given (``--quality``, a request's ``quality``), and its range.
 DEFAULT_JPEG_QUALITY = 95
 MIN_JPEG_QUALITY, MAX_JPEG_QUALITY = 1, 100

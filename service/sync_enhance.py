@@ -77,7 +77,12 @@ class SyncEnhancer:
             name=Path(upload.filename).stem or "upload",
             out_dir=work / "out",
         )
-        await asyncio.to_thread(lambda: (work.mkdir(parents=True), os.replace(upload.path, job.source)))
+
+        def place_upload() -> None:
+            work.mkdir(parents=True)
+            os.replace(upload.path, job.source)
+
+        await asyncio.to_thread(place_upload)
         hooks = ClipHooks()
         over = [False]
 

@@ -15,7 +15,7 @@ import unicodedata
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING
 
 import anyio
 from python_multipart.exceptions import MultipartParseError
@@ -23,6 +23,9 @@ from python_multipart.multipart import MultipartParser, MultipartState, parse_op
 from starlette.requests import ClientDisconnect, Request
 
 from colonlight import VIDEO_SUFFIXES
+
+if TYPE_CHECKING:  # python-multipart defines its callback table's type for checkers only
+    from python_multipart.multipart import MultipartCallbacks
 
 from .errors import ApiError, is_disk_full, storage_full
 
@@ -121,18 +124,15 @@ class _Collector:
                 raise ApiError(422, "validation_error", f"form field `{self._name[:50]}` is given twice")
             self.fields[self._name] = self._data.decode("utf-8", "replace")
 
-    def callbacks(self) -> dict[str, Any]:
+    def callbacks(self) -> MultipartCallbacks:
         return {
-            name: getattr(self, name)
-            for name in (
-                "on_part_begin",
-                "on_header_field",
-                "on_header_value",
-                "on_header_end",
-                "on_headers_finished",
-                "on_part_data",
-                "on_part_end",
-            )
+            "on_part_begin": self.on_part_begin,
+            "on_header_field": self.on_header_field,
+            "on_header_value": self.on_header_value,
+            "on_header_end": self.on_header_end,
+            "on_headers_finished": self.on_headers_finished,
+            "on_part_data": self.on_part_data,
+            "on_part_end": self.on_part_end,
         }
 
 

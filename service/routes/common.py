@@ -89,7 +89,7 @@ def job_view(rec: JobRecord, manager: JobManager) -> JobStatus:
         id=rec.id,
         status=rec.status,
         filename=rec.filename,
-        options=rec.options,  # type: ignore[arg-type]
+        options=rec.options,
         frames_done=rec.frames_done,
         frames_total=total,
         progress=progress,
@@ -97,7 +97,7 @@ def job_view(rec: JobRecord, manager: JobManager) -> JobStatus:
         note=rec.note,
         attempts=rec.attempts,
         created_at=iso(rec.created_at),
-        started_at=iso(rec.started_at),  # type: ignore[arg-type]
+        started_at=iso(rec.started_at),
         finished_at=iso(rec.finished_at),
         expires_at=iso(rec.finished_at + manager.settings.result_ttl_seconds) if rec.finished_at is not None else None,
         links=JobLinks(self=base, video=f"{base}/video", gammas=f"{base}/gammas", frames=f"{base}/frames.zip"),

@@ -35,7 +35,7 @@ async def readyz(manager: ManagerDep) -> JSONResponse:
         ready=ready,
         status=status,
         message=message,
-        model=manager.model_info,  # type: ignore[arg-type]
+        model=manager.model_info,
         workers=WorkerState(total=s.workers, busy=min(running, s.workers)),
         queue=QueueState(depth=waiting, capacity=s.capacity, admitted=admitted, uploads=manager.uploads_in_flight()),
     )

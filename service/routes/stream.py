@@ -176,7 +176,7 @@ class StreamSession:
     async def receive(self) -> dict[str, Any]:
         idle = self.settings.stream_idle_seconds
         try:
-            message: dict[str, Any] = await asyncio.wait_for(self.ws.receive(), idle)
+            message = dict(await asyncio.wait_for(self.ws.receive(), idle))  # starlette types it a MutableMapping
         except asyncio.TimeoutError:
             raise Closing(
                 CLOSE_IDLE,
