@@ -9,8 +9,8 @@ beyond the network every model shares.
 
 A second table times the resize to the network's input (``network_input``) against the rule it replaced in
 session 15 (a Gaussian pyramid, then an area average: the baseline) and one exact area average of the whole frame,
-and says how far each moves the default's gains and gammas from that exact average's, over frames of one held-out
-clip rendered at the full size (cached between runs).
+and says how far each moves the default's correction (the table it applies, and its gamma) from that exact
+average's, over frames of one held-out clip rendered at the full size (cached between runs).
 
 Run: ``python -m benchmarks model_cost [--frames 200] [--weights W]``.
 """
@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import importlib.util
 import os
 import sys
 import time
@@ -31,9 +32,8 @@ import numpy as np
 import torch
 
 from colonlight.checkpoint import LoadedWeights, load_weights
-from colonlight.correction import gain_gamma_values
 from colonlight.limits import DEFAULT_MODEL_SIZE
-from colonlight.methods.rnn import PRESAMPLE, RecurrentGammaMethod, network_input, to_tensor
+from colonlight.methods.rnn import PRESAMPLE, RecurrentGammaMethod, head_correction, network_input, to_tensor
 from colonlight.model import GammaNet
 
 from .common import clip_cache, markdown_table
@@ -44,6 +44,7 @@ WIDTH, HEIGHT = 1350, 1080
 BUDGET_MS = 5.0
 BASELINE = "baseline: rgb input, same head and size"
 PREVIOUS = "default as session 14 ran it (pyramid resize, contiguous weights)"
+ONNX = "default, --runtime onnxruntime (one intra-op thread)"
 RESIZE_BASELINE = "baseline: Gaussian pyramid, then area (before session 15)"
 RESIZE_CLIP_SEED, RESIZE_CLIP_FRAMES = 810000, 12  # a held-out-family clip, rendered at WIDTH x HEIGHT
 
@@ -91,7 +92,10 @@ def main(argv: list[str] | None = None) -> str:
 
 def _previous_step(weights: LoadedWeights) -> Callable[[np.ndarray], object]:
     """The default's step as session 14 ran it: the Gaussian-pyramid resize and contiguous (NCHW) weights."""
-    net = copy.deepcopy(weights.net).to(memory_format=torch.contiguous_format).eval()
+    net = copy.deepcopy(weights.net).eval()
+    for param in net.parameters():  # undo the channels-last layout load_weights' method gives: NCHW, as then
+        if param.ndim == 4:
+            param.data = param.data.contiguous()
     size = weights.input_size or DEFAULT_MODEL_SIZE
     state: list[Any] = [None]
 
@@ -121,11 +125,12 @@ def _cost_table(shipped: LoadedWeights, frame: np.ndarray, frames: int, load: fl
     (the correction's table applied to the full frame as well), each on its own stream, models interleaved; and
     the default's step as session 14 ran it (step only)."""
     models = {"default": shipped, BASELINE: _baseline(shipped)}
-    steps: dict[str, Callable[[np.ndarray], object]] = {
-        name: RecurrentGammaMethod(weights=w, device="cpu").stream().predict for name, w in models.items()
-    }
+    methods = {name: RecurrentGammaMethod(weights=w, device="cpu") for name, w in models.items()}
+    if importlib.util.find_spec("onnxruntime") and importlib.util.find_spec("onnxscript"):  # the export extra
+        methods[ONNX] = RecurrentGammaMethod(weights=shipped, device="cpu", runtime="onnxruntime")
+    steps: dict[str, Callable[[np.ndarray], object]] = {name: m.stream().predict for name, m in methods.items()}
     steps[PREVIOUS] = _previous_step(shipped)
-    pushes = {name: RecurrentGammaMethod(weights=w, device="cpu").stream().push for name, w in models.items()}
+    pushes = {name: m.stream().push for name, m in methods.items()}
     calls: dict[tuple[str, str], Callable[[], object]] = {}
     for name in steps:  # each model's step, then its push: one model's runs side by side in every round
         calls[("step", name)] = partial(steps[name], frame)
@@ -179,15 +184,18 @@ def _hd_clip() -> list[np.ndarray]:
     return clip_cache(f"model-cost-{RESIZE_CLIP_SEED}-{WIDTH}x{HEIGHT}-{RESIZE_CLIP_FRAMES}", render)
 
 
-def _corrections(weights: LoadedWeights, inputs: list[np.ndarray]) -> np.ndarray:
-    """``(gain, gamma)`` per frame of a gain-gamma network over ``inputs`` (already at its size), state carried."""
+def _corrections(weights: LoadedWeights, inputs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """``(tables (N, 256), gammas (N,))`` the network's head gives over ``inputs`` (already at its size), state
+    carried, by the stream's own rule (``head_correction``): any head compares as the table it applies."""
     state = None
-    out = []
+    luts, gammas = [], []
     with torch.inference_mode():
         for x in inputs:
             z, state = weights.net.step(to_tensor(x, torch.device("cpu")), state)
-            out.append(gain_gamma_values(*z.reshape(-1).tolist()))
-    return np.array(out)
+            correction = head_correction(weights.head, z.reshape(-1).tolist())
+            luts.append(np.arange(256) if correction.lut is None else correction.lut)
+            gammas.append(correction.gamma)
+    return np.array(luts, dtype=float), np.array(gammas)
 
 
 def _resize_table(shipped: LoadedWeights, frame: np.ndarray, frames: int, load: float) -> str:
@@ -197,17 +205,14 @@ def _resize_table(shipped: LoadedWeights, frame: np.ndarray, frames: int, load: 
     clip = _hd_clip()
     small = {name: [rule(f, size) for f in clip] for name, rule in RESIZES.items()}
     reference = list(RESIZES)[-1]
-    # the gain and gamma columns describe the gain-gamma head (the default's); the reference's run once
-    expected = _corrections(shipped, small[reference]) if shipped.head == "gain-gamma" else None
+    ref_luts, ref_gammas = _corrections(shipped, small[reference])
     rows: list[list[object]] = []
     for name in RESIZES:
         levels = np.mean(
             [np.abs(a.astype(float) - b).mean() for a, b in zip(small[name], small[reference], strict=True)]
         )
-        moved = ["-", "-"]
-        if expected is not None:
-            diff = np.abs(_corrections(shipped, small[name]) - expected).max(axis=0)
-            moved = [f"{diff[0]:.4f}", f"{diff[1]:.4f}"]
+        luts, gammas = _corrections(shipped, small[name])
+        moved = [f"{np.abs(luts - ref_luts).max():.0f}", f"{np.abs(gammas - ref_gammas).max():.4f}"]
         rows.append([name, f"{ms[name]:.2f}", f"{ms[name] / ms[RESIZE_BASELINE]:.2f}x", f"{levels:.2f}", *moved])
     return (
         f"## Resize to the network's {size}x{size} input from {WIDTH}x{HEIGHT}: median of {frames} "
@@ -218,7 +223,7 @@ def _resize_table(shipped: LoadedWeights, frame: np.ndarray, frames: int, load: 
                 "ms/frame",
                 "vs baseline",
                 "mean |input - reference|, 8-bit levels",
-                "max |gain - reference's|",
+                f"max |{shipped.head} table - reference's|, levels",
                 "max |gamma - reference's|",
             ],
             rows,

@@ -6,9 +6,9 @@ size training never used (160x128). The first clip of every four is steady (scor
 start with two undisturbed frames.
 
 Run: ``python -m benchmarks model_validation [--clips 8] [--weights W ...] [--methods he,clahe]`` (``none``,
-``clean`` and the three oracles unless ``--no-references``: the ceilings of one global correction per frame, of
-the default's own gain-gamma family and of one gamma; ``--methods`` adds built-in baselines, to see whether a
-candidate is ahead of them).
+``clean`` and the three oracles unless ``--no-references``: the ceilings of one global correction per frame (the
+shipped curve head's family), of a gain and a gamma (the previous default's) and of one gamma; ``--methods`` adds
+built-in baselines, to see whether a candidate is ahead of them).
 """
 
 from __future__ import annotations

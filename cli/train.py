@@ -69,7 +69,7 @@ def _clips(paths: list[Path]) -> list[Path]:
 
 def _init_design(init: str | None, head: str | None) -> tuple[str, str]:
     """The head and input a run keeps when ``--head`` / ``--inputs`` are not given: the starting checkpoint's
-    (fine-tuning the shipped gain-gamma model keeps its head and output layer), else the paper's (one gamma,
+    (fine-tuning the shipped curve model keeps its head and output layer), else the paper's (one gamma,
     from RGB). Asked for the paper's head (``head``), a run from the shipped model (input ``delta``) reads RGB,
     the paper's input (``GammaNet.inputs_for_head``)."""
     if not init:

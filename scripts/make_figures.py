@@ -3,8 +3,9 @@
     python scripts/make_figures.py            # needs the `docs` extra (matplotlib)
 
 A held-out synthetic clip (settings never used in training, seed 20210628, with lighting disturbances and two
-undisturbed seed frames) is enhanced by the default model; the plot shows the gamma applied per frame beside the
-recorded disturbance (the generator's display gain and contrast exponent).
+undisturbed seed frames) is enhanced by the default model; the plot shows the gamma per frame (for a curve or
+gain-gamma head, the summary gamma its records give) beside the recorded contrast exponent, and the mean
+luminance of the input, enhanced and clean frames.
 """
 
 from __future__ import annotations
@@ -32,7 +33,9 @@ def main() -> None:
     )
     frames = list(generate_clip(cfg, seed=SEED))
     images = [f.image for f in frames]
-    results = list(iter_enhanced(iter(images), create_method("rnn", device="cpu")))
+    method = create_method("rnn", device="cpu")
+    head = method.parameters().get("head", "gamma")
+    results = list(iter_enhanced(iter(images), method))
     enhanced = [r.frame for r in results]
     gammas = [r.gamma for r in results]
 
@@ -54,7 +57,8 @@ def main() -> None:
     masks = content_masks(images)
     t = np.arange(len(images)) / cfg.fps
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
-    ax1.plot(t, gammas, color="tab:blue", label="gamma applied by colonlight")
+    gamma_label = "gamma applied by colonlight" if head == "gamma" else f"colonlight's gamma ({head} head: summary)"
+    ax1.plot(t, gammas, color="tab:blue", label=gamma_label)
     contrast = [f.lighting.get("contrast", 1.0) for f in frames]
     ax1.plot(t, contrast, color="tab:orange", ls="--", label="recorded contrast exponent")
     ax1.set_ylabel("exponent")

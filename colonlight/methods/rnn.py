@@ -1,9 +1,10 @@
 """``rnn``: the paper's recurrent gamma network, streamed frame by frame.
 
 The network sees a small square copy of each frame (``model_size``; ``None`` feeds the full frame, as the release
-does); it predicts one number, so the gamma it gives is applied to the full-resolution frame through a 256-entry
-lookup table. The first ``seeds`` frames (2, as in the release) only build the recurrent state and are written
-unchanged with gamma 1.0.
+does); its head predicts a handful of numbers per frame (the release's one gamma; the shipped model's monotone
+tone curve), so the correction they give (``head_correction``) is applied to the full-resolution frame through a
+256-entry lookup table. The first ``seeds`` frames (2, as in the release; the card's count for ours) only build
+the recurrent state and are written unchanged with gamma 1.0.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import torch
 
 from ..checkpoint import LoadedWeights, load_weights
 from ..correction import CURVE_KNOTS, curve_values, gain_gamma_values
-from ..curves import apply_gamma, apply_lut, curve_lut, gain_gamma_lut
+from ..curves import apply_lut, curve_lut, gain_gamma_lut, gamma_lut
 from ..device import resolve_device
 from ..errors import OptionError
 from ..limits import DEFAULT_MODEL_SIZE, MAX_MODEL_SIZE, MIN_MODEL_SIZE
@@ -83,6 +84,29 @@ def curve_correction(z: list[float]) -> tuple[np.ndarray | None, list[float], fl
     return curve_lut(CURVE_KNOTS, values), [float(v) for v in values], gamma, clamped
 
 
+@dataclasses.dataclass(frozen=True)
+class Correction:
+    """One frame's correction, from its head's raw outputs: the table applied and what the records say of it."""
+
+    lut: np.ndarray | None  # the 256-entry table applied to the frame; None leaves the frame unchanged
+    gamma: float  # the frame's gamma (the curve head's: its summary gamma)
+    extra: dict[str, Any]  # recorded beside it: the curve head's values at the knots, the gain-gamma head's gain
+    clamped: bool  # a raw output fell outside its range (or was not finite) and was kept inside it
+
+
+def head_correction(head: str, raw: list[float]) -> Correction:
+    """The correction ``head`` (``gamma``, ``gain-gamma`` or ``curve``) gives for its raw outputs ``raw``: the one
+    rule for the stream, the benchmarks and the tests, so a head's records and applied table cannot drift apart."""
+    if head == "curve":
+        lut, values, gamma, clamped = curve_correction(raw)
+        return Correction(lut=lut, gamma=gamma, extra={"curve": values}, clamped=clamped)
+    if head == "gain-gamma":
+        gain, gamma, clamped = clamp_gain_gamma(*raw)
+        return Correction(lut=gain_gamma_lut(gain, gamma), gamma=gamma, extra={"gain": gain}, clamped=clamped)
+    gamma, clamped = clamp_gamma(raw[0])
+    return Correction(lut=gamma_lut(gamma), gamma=gamma, extra={}, clamped=clamped)
+
+
 def network_input(frame: np.ndarray, size: int | None) -> np.ndarray:
     """The copy of ``frame`` the network sees: ``size x size`` (area-averaged) or the frame itself.
 
@@ -122,7 +146,7 @@ class RecurrentGammaStream(MethodStream):
 
     def predict(self, frame: np.ndarray) -> list[float]:
         """Advance the recurrent state by one frame and return the head's raw outputs (``[a]`` for the
-        ``gamma`` head, ``[z0, z1]`` for ``gain-gamma``)."""
+        ``gamma`` head, ``[z0, z1]`` for ``gain-gamma``, ``CURVE_SEGMENTS`` slopes for ``curve``)."""
         m = self._method
         x = to_tensor(network_input(frame, m.model_size), m.device)
         with torch.inference_mode():
@@ -141,19 +165,12 @@ class RecurrentGammaStream(MethodStream):
         info: dict[str, Any] = {"z": raw} if head != "gamma" else {"a": raw[0]}
         if index < self._method.seeds:
             return [FrameResult(frame=frame, gamma=1.0, info={**info, "seed": True})]
-        if head == "curve":
-            lut, info["curve"], gamma, clamped = curve_correction(raw)
-            corrected = frame if lut is None else apply_lut(frame, lut)
-        elif head == "gain-gamma":
-            gain, gamma, clamped = clamp_gain_gamma(*raw)
-            info["gain"] = gain
-            corrected = apply_lut(frame, gain_gamma_lut(gain, gamma))
-        else:
-            gamma, clamped = clamp_gamma(raw[0])
-            corrected = apply_gamma(frame, gamma)
-        if clamped:
+        correction = head_correction(head, raw)
+        info.update(correction.extra)
+        if correction.clamped:
             info["clamped"] = True
-        return [FrameResult(frame=corrected, gamma=gamma, info=info)]
+        corrected = frame if correction.lut is None else apply_lut(frame, correction.lut)
+        return [FrameResult(frame=corrected, gamma=correction.gamma, info=info)]
 
 
 class RecurrentGammaMethod(Method):
@@ -166,7 +183,7 @@ class RecurrentGammaMethod(Method):
             ``DEFAULT_MODEL_SIZE`` (the authors' ``.pth`` has no card).
         device: ``auto | cpu | cuda | cuda:N``.
         seeds: leading frames passed through unchanged while the state builds; ``None``: the card's
-            ``seed_frames`` (0 for the gain-gamma default, trained to correct every frame), else 2 (the release).
+            ``seed_frames`` (0 for the shipped default, trained to correct every frame), else 2 (the release).
         runtime: ``torch`` or ``onnxruntime`` (the step on ONNX Runtime, CPU only; ``methods/rnn_onnx``).
     """
 

@@ -18,14 +18,7 @@ pytest.importorskip("onnxruntime", reason="the export extra (onnxruntime) is not
 pytest.importorskip("onnxscript", reason="the export extra (onnxscript) is not installed")
 
 from colonlight.checkpoint import LoadedWeights, load_weights  # noqa: E402
-from colonlight.curves import gain_gamma_lut, gamma_lut  # noqa: E402
-from colonlight.methods.rnn import (  # noqa: E402
-    PRESAMPLE,
-    RecurrentGammaMethod,
-    clamp_gain_gamma,
-    clamp_gamma,
-    curve_correction,
-)
+from colonlight.methods.rnn import PRESAMPLE, RecurrentGammaMethod, head_correction  # noqa: E402
 from colonlight.onnx_export import export_onnx, onnx_sidecar_path  # noqa: E402
 from colonlight.sources import clip_frames  # noqa: E402
 from colonlight.video import VideoWriter  # noqa: E402
@@ -106,15 +99,11 @@ def _run_host(host: Path, onnx: Path, frames: list[np.ndarray], out: Path) -> li
 
 
 def _python_correction(head: str, raw: list[float]) -> tuple[np.ndarray, dict[str, object]]:
-    """colonlight's own rule (methods/rnn) applied to the host's raw outputs: the table and the recorded values."""
-    if head == "curve":
-        lut, values, gamma, _clamped = curve_correction(raw)
-        return (np.arange(256, dtype=np.uint8) if lut is None else lut), {"gamma": gamma, "curve": values}
-    if head == "gain-gamma":
-        gain, gamma, _clamped = clamp_gain_gamma(*raw)
-        return gain_gamma_lut(gain, gamma), {"gamma": gamma, "gain": gain}
-    gamma, _clamped = clamp_gamma(raw[0])
-    return gamma_lut(gamma), {"gamma": gamma}
+    """colonlight's own rule (``methods/rnn.head_correction``) applied to the host's raw outputs: the table
+    (identity where the outputs were unusable) and the recorded values."""
+    correction = head_correction(head, raw)
+    lut = np.arange(256, dtype=np.uint8) if correction.lut is None else correction.lut
+    return lut, {"gamma": correction.gamma, **correction.extra}
 
 
 @pytest.mark.parametrize("which", ["shipped", "authors", "gamma", "gain-gamma", "curve"])

@@ -175,10 +175,12 @@ def test_training_with_the_curve_head_and_the_temporal_term_learns_and_is_record
     assert load_weights(res.weights).net.out_linear.out_features == CURVE_SEGMENTS
 
 
-def test_a_curve_head_started_from_the_gain_gamma_default_starts_with_its_corrections() -> None:
-    """``--head curve --init default``: the output layer is the default's, mapped to curves, so on a real clip
-    the new network's corrected frames are within about a grey level of the default's from the first step on
-    (a zero output layer would start at the identity, as far off as the default's corrections are large)."""
+def test_a_curve_head_started_from_a_gain_gamma_checkpoint_starts_with_its_corrections(tmp_path: Path) -> None:
+    """``--head curve --init <gain-gamma checkpoint>``: the output layer is the checkpoint's, mapped to curves, so
+    on a real clip the new network's corrected frames are within about a grey level of the checkpoint's from the
+    first step on (a zero output layer would start at the identity, as far off as the checkpoint's corrections are
+    large). The gain-gamma checkpoint makes corrections of a trained model's size: the shipped default's backbone,
+    with its curve output layer projected onto the gain-gamma head (the map's pseudo-inverse)."""
     from colonlight.checkpoint import DEFAULT_WEIGHTS
     from colonlight.correction import apply_head, gain_gamma_to_curve_map
     from colonlight.synth import SynthConfig, generate_clip
@@ -186,9 +188,18 @@ def test_a_curve_head_started_from_the_gain_gamma_default_starts_with_its_correc
 
     mapping = gain_gamma_to_curve_map()
     assert mapping.shape == (CURVE_SEGMENTS, 2) and np.all(np.isfinite(mapping))
-    shipped = load_weights(DEFAULT_WEIGHTS).net
+    default = load_weights(DEFAULT_WEIGHTS).net
+    assert default.head == "curve"
+    gain_gamma = initial_net(TrainConfig(head="gain-gamma", inputs=default.inputs, init=str(DEFAULT_WEIGHTS)))
+    back = torch.from_numpy(np.linalg.pinv(mapping)).to(default.out_linear.weight.dtype)
+    with torch.no_grad():
+        gain_gamma.out_linear.weight.copy_(back @ default.out_linear.weight)
+        gain_gamma.out_linear.bias.copy_(back @ default.out_linear.bias)
+    start = tmp_path / "gain-gamma.safetensors"
+    save_weights(gain_gamma, start, {"name": "gain-gamma", "head": "gain-gamma", "inputs": default.inputs})
+    shipped = load_weights(start).net
     assert shipped.head == "gain-gamma"
-    curve = initial_net(TrainConfig(head="curve", inputs=shipped.inputs, init=str(DEFAULT_WEIGHTS))).eval()
+    curve = initial_net(TrainConfig(head="curve", inputs=shipped.inputs, init=str(start))).eval()
     assert curve.head == "curve" and curve.inputs == shipped.inputs
     cfg = SynthConfig.sample(np.random.default_rng(31), split="heldout", width=48, height=48, n_frames=24)
     frames = torch.stack([torch.from_numpy(f.image).permute(2, 0, 1).float() / 255 for f in generate_clip(cfg, 31)])

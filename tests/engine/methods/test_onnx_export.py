@@ -30,7 +30,7 @@ from colonlight.methods.rnn import (  # noqa: E402
     RecurrentGammaMethod,
     network_input,
 )
-from colonlight.model import GammaNet, State  # noqa: E402
+from colonlight.model import HEAD_OUTPUTS, GammaNet, State  # noqa: E402
 from colonlight.onnx_export import export_onnx, onnx_sidecar_path, read_sidecar  # noqa: E402
 from colonlight.onnx_step import cpu_session  # noqa: E402
 from colonlight.sources import clip_frames  # noqa: E402
@@ -123,14 +123,19 @@ def test_sidecar_says_what_a_host_needs(shipped_onnx: Path) -> None:
     state = ["h", "c", "z_last", "y_last"]
     assert [i["name"] for i in side["inputs"]] == ["frame", *state]
     assert side["inputs"][0]["shape"] == [1, 3, 48, 48] and side["inputs"][1]["shape"] == [1, 32, 48, 48]
-    assert side["inputs"][3]["shape"] == [1, 2] and side["inputs"][4]["shape"] == [1, 3, 48, 48]
+    width = HEAD_OUTPUTS[shipped.head]  # z_last holds the head's last raw output
+    assert side["inputs"][3]["shape"] == [1, width] and side["inputs"][4]["shape"] == [1, 3, 48, 48]
     assert all("zeros" in i["initial"] for i in side["inputs"][1:])
     head_output = "a" if shipped.head == "gamma" else "z"
     assert [o["name"] for o in side["outputs"]] == [head_output, *(f"{n}_out" for n in state)]
     assert "/ 255" in side["inputs"][0]["normalisation"] and "zeros" in side["inputs"][1]["initial"]
     want_seeds = shipped.seed_frames if shipped.seed_frames is not None else SEED_FRAMES
     assert side["seed_frames"]["count"] == want_seeds
-    assert side["gamma"]["range"] == [GAMMA_MIN, GAMMA_MAX]
+    assert side["correction"]["gamma_range"] == [GAMMA_MIN, GAMMA_MAX]
+    if shipped.head != "curve":  # the curve head's gamma is a summary: its range is in summary_gamma's text
+        assert side["gamma"]["range"] == [GAMMA_MIN, GAMMA_MAX]
+    else:
+        assert str(GAMMA_MAX) in side["gamma"]["summary_gamma"] and side["gamma"]["knots"] == list(CURVE_KNOTS)
     if shipped.head == "gamma":
         assert side["gamma"]["formula"] == "gamma = 1 / a"
     assert "lut[v]" in side["lut"]["build"] and "LUT" in side["lut"]["apply"]
@@ -142,7 +147,7 @@ def test_sidecar_says_what_a_host_needs(shipped_onnx: Path) -> None:
         (1, 3, 48, 48),
         (1, 32, 48, 48),
         (1, 32, 48, 48),
-        (1, 2),
+        (1, width),
         (1, 3, 48, 48),
     ]
 

@@ -20,6 +20,7 @@ from typer.testing import CliRunner
 
 from colonlight.content import DETECT_FRAMES, BlockStats, ContentStream, detect_area, iou
 from colonlight.methods import create_method
+from colonlight.methods.rnn import RecurrentGammaMethod, head_correction
 from colonlight.pipeline import ClipOptions, enhance_clip
 from colonlight.synth import SynthConfig, generate_clip
 from colonlight.synth.overlay import OverlaySpec
@@ -186,23 +187,37 @@ def test_any_method_keeps_border_pixels(scene: np.ndarray, method: str) -> None:
     assert any(not np.array_equal(a.frame[content], b.frame[content]) for a, b in zip(results, plain, strict=True))
 
 
-def test_gammas_match_the_clip_without_its_border(scene: np.ndarray) -> None:
-    """Tolerance: the bordered clip hides picture the plain clip shows (an octagon at 0.96 keeps 89% of the frame,
-    a disc of 0.96 x height keeps 54%), so the network sees less; the gamma may move by that much and no more.
-    0.02 in gamma is under 2 grey levels at mid-grey. Measured on 3 seeds, 54 frames: octagon max |dg| 0.005-0.012
-    (full on the bordered clip: 0.034-0.124); disc mean |dg| 0.016-0.019 (full: 0.026-0.070)."""
+def applied_tables(method: RecurrentGammaMethod, results: list) -> np.ndarray:
+    """``(N, 256)`` tables the stream applied, rebuilt from each frame's raw outputs by the stream's own rule
+    (``head_correction``), the release's two seed frames dropped whatever the weights' seed count."""
+    head = method.weights.head
+    raws = [r.info["z"] if "z" in r.info else [r.info["a"]] for r in results]
+    return np.array([head_correction(head, raw).lut for raw in raws], dtype=float)[2:]
+
+
+def test_corrections_match_the_clip_without_its_border(scene: np.ndarray) -> None:
+    """Compared as the tables applied (mean |difference| over the 256 input levels, in 8-bit levels), which any
+    head gives; a gain-gamma head can hold its gamma and move its gain, a curve head's summary gamma moves with
+    its dark end. Tolerance: the bordered clip hides picture the plain clip shows (an octagon at 0.96 keeps 89%
+    of the frame, a disc of 0.96 x height keeps 54%), so the network sees less; the correction may move by that
+    much and no more. Measured on seeds 1 and 2, 54 frames, with the curve default and the gain-gamma default
+    before it: octagon max 0.9-3.4 levels (full on the bordered clip: 2.4-5.9); disc mean 1.8-6.6 (full: 68-102).
+    On seed 3 the hidden corners carry what both models key on: there the octagon moves the table by up to 14
+    levels with the area as without it."""
     method = create_method("rnn")
-    plain = np.array([r.gamma for r in run_stream(method.stream(), scene)])[2:]
-    for spec, stat, tol in (
-        (OverlaySpec("octagon", text=True), np.max, 0.02),
-        (OverlaySpec("round", text=True), np.mean, 0.03),
+    assert isinstance(method, RecurrentGammaMethod)
+    plain = applied_tables(method, run_stream(method.stream(), scene))
+    for spec, stat, tol, apart in (
+        (OverlaySpec("octagon", text=True), np.max, 5.0, 1.5),
+        (OverlaySpec("round", text=True), np.mean, 10.0, 4.0),
     ):
         frames = drawn(scene, spec)
-        auto = np.array([r.gamma for r in run_stream(ContentStream(method.stream()), frames)])[2:]
-        full = np.array([r.gamma for r in run_stream(method.stream(), frames)])[2:]
-        dev_auto, dev_full = float(stat(np.abs(auto - plain))), float(stat(np.abs(full - plain)))
+        auto = applied_tables(method, run_stream(ContentStream(method.stream()), frames))
+        full = applied_tables(method, run_stream(method.stream(), frames))
+        dev_auto = float(stat(np.abs(auto - plain).mean(axis=1)))
+        dev_full = float(stat(np.abs(full - plain).mean(axis=1)))
         assert dev_auto <= tol, (spec, dev_auto, dev_full)
-        assert dev_full > 2 * dev_auto, (spec, dev_auto, dev_full)  # the border does move the gammas
+        assert dev_full > apart * dev_auto, (spec, dev_auto, dev_full)  # the border does move the correction
 
 
 def _without_content_setting(path: Path) -> dict:
