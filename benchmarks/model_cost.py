@@ -193,7 +193,7 @@ def _corrections(weights: LoadedWeights, inputs: list[np.ndarray]) -> tuple[np.n
         for x in inputs:
             z, state = weights.net.step(to_tensor(x, torch.device("cpu")), state)
             correction = head_correction(weights.head, z.reshape(-1).tolist())
-            luts.append(np.arange(256) if correction.lut is None else correction.lut)
+            luts.append(correction.table)
             gammas.append(correction.gamma)
     return np.array(luts, dtype=float), np.array(gammas)
 

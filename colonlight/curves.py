@@ -15,6 +15,9 @@ import numpy as np
 from .errors import OptionError
 
 _LEVELS = np.arange(256, dtype=np.float64) / 255.0
+#: The table that leaves every value as it is (read-only: shared).
+IDENTITY_LUT = np.arange(256, dtype=np.uint8)
+IDENTITY_LUT.flags.writeable = False
 
 
 def gamma_lut(gamma: float) -> np.ndarray:

@@ -8,7 +8,7 @@ gamma applied is ``1/a``. Attribute names match the release's state-dict keys (`
 Three heads share that backbone (see :mod:`colonlight.correction` for what their outputs mean):
 
 * ``gamma`` (the paper's, the authors' checkpoint): ``linear(32->1) + ReLU = a``, gamma ``1/a``;
-* ``gain-gamma`` (colonlight's default model in sessions 8-17): ``linear(32->2)``, raw outputs mapped to a gain
+* ``gain-gamma`` (colonlight's default model in sessions 8-18): ``linear(32->2)``, raw outputs mapped to a gain
   and a gamma, so the correction ``gain * I ** gamma`` can undo a gain jump and a tone-curve change at once,
   which one gamma cannot;
 * ``curve`` (colonlight's default model since session 19): ``linear(32->8)``, the slopes of a monotone tone

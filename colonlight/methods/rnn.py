@@ -21,7 +21,7 @@ import torch
 
 from ..checkpoint import LoadedWeights, load_weights
 from ..correction import CURVE_KNOTS, curve_values, gain_gamma_values
-from ..curves import apply_lut, curve_lut, gain_gamma_lut, gamma_lut
+from ..curves import IDENTITY_LUT, apply_lut, curve_lut, gain_gamma_lut, gamma_lut
 from ..device import resolve_device
 from ..errors import OptionError
 from ..limits import DEFAULT_MODEL_SIZE, MAX_MODEL_SIZE, MIN_MODEL_SIZE
@@ -92,6 +92,12 @@ class Correction:
     gamma: float  # the frame's gamma (the curve head's: its summary gamma)
     extra: dict[str, Any]  # recorded beside it: the curve head's values at the knots, the gain-gamma head's gain
     clamped: bool  # a raw output fell outside its range (or was not finite) and was kept inside it
+
+    @property
+    def table(self) -> np.ndarray:
+        """The table as a whole: ``lut``, or the identity where the frame is left unchanged (for comparing
+        corrections; the stream skips the lookup then)."""
+        return IDENTITY_LUT if self.lut is None else self.lut
 
 
 def head_correction(head: str, raw: list[float]) -> Correction:

@@ -102,8 +102,7 @@ def _python_correction(head: str, raw: list[float]) -> tuple[np.ndarray, dict[st
     """colonlight's own rule (``methods/rnn.head_correction``) applied to the host's raw outputs: the table
     (identity where the outputs were unusable) and the recorded values."""
     correction = head_correction(head, raw)
-    lut = np.arange(256, dtype=np.uint8) if correction.lut is None else correction.lut
-    return lut, {"gamma": correction.gamma, **correction.extra}
+    return correction.table, {"gamma": correction.gamma, **correction.extra}
 
 
 @pytest.mark.parametrize("which", ["shipped", "authors", "gamma", "gain-gamma", "curve"])

@@ -192,7 +192,7 @@ def applied_tables(method: RecurrentGammaMethod, results: list) -> np.ndarray:
     (``head_correction``), the release's two seed frames dropped whatever the weights' seed count."""
     head = method.weights.head
     raws = [r.info["z"] if "z" in r.info else [r.info["a"]] for r in results]
-    return np.array([head_correction(head, raw).lut for raw in raws], dtype=float)[2:]
+    return np.array([head_correction(head, raw).table for raw in raws], dtype=float)[2:]
 
 
 def test_corrections_match_the_clip_without_its_border(scene: np.ndarray) -> None:
