@@ -188,7 +188,7 @@ def train_cmd(
         from colonlight import DEFAULT_WEIGHTS
 
         init = str(DEFAULT_WEIGHTS)
-    if method == "rnn" and (head is None or inputs is None):
+    if method == "rnn":  # --init is read now, even with --head and --inputs given: bad, it fails before any rendering
         init_head, init_inputs = _init_design(init, head)
         head, inputs = head or init_head, inputs or init_inputs
     train_clips = _clips(list(data or []))

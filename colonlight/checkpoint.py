@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import pickle
+import warnings
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -85,20 +86,38 @@ def read_card(path: Path, digest: str) -> dict[str, Any]:
     return card
 
 
+#: What torch.load says of a file it cannot read in words worth passing on.
+_LOAD_ERRORS = (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile, ValueError, OSError)
+
+
 def _state_dict_from_pth(path: Path) -> dict[str, torch.Tensor]:
     try:
-        obj = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile, ValueError, OSError) as exc:
-        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        with warnings.catch_warnings():  # its "unusual pickle protocol" warning on garbage: the error below says it
+            warnings.simplefilter("ignore", UserWarning)
+            obj = torch.load(path, map_location="cpu", weights_only=True)
+    # Any exception: on bytes that are not a checkpoint, the weights-only unpickler fails with whatever its
+    # opcode table hits first (KeyError, IndexError, ... besides the documented ones), and a file we cannot
+    # read is the one thing this can mean.
+    except Exception as exc:  # noqa: BLE001
+        said = isinstance(exc, _LOAD_ERRORS) and str(exc).strip()  # the others' text is an opcode's key or index
+        reason = str(exc).strip().splitlines()[0] if said else "its bytes are not a checkpoint torch can read"
         raise CheckpointError(f"{path}: not a readable PyTorch state dict ({reason[:200]})") from exc
     if isinstance(obj, dict):
         for key in ("state_dict", "model", "model_state_dict"):
             if key in obj and isinstance(obj[key], dict):
                 obj = obj[key]
                 break
-    if not isinstance(obj, dict) or not all(isinstance(v, torch.Tensor) for v in obj.values()):
-        raise CheckpointError(f"{path}: expected a state dict of tensors, found {type(obj).__name__}")
+    if not isinstance(obj, dict) or not all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in obj.items()):
+        raise CheckpointError(f"{path}: expected a state dict of named tensors, found {type(obj).__name__}")
     return {k.removeprefix("module."): v for k, v in obj.items()}
+
+
+def _check_finite(state: dict[str, torch.Tensor], path: Path) -> None:
+    """Refuse weights with NaN or infinite values: such a network gives no usable correction for any frame (the
+    stream would leave every frame unchanged, flagged), so a damaged file is said to be one at load."""
+    for key, tensor in state.items():
+        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+            raise CheckpointError(f"{path}: non-finite values (NaN or infinity) in {key}")
 
 
 def _head_of(state: dict[str, torch.Tensor], card: dict[str, Any], path: Path) -> str:
@@ -178,6 +197,7 @@ def load_weights(path: Path | str | None = None) -> LoadedWeights:
         name = path.stem
     # BatchNorm's step counter is bookkeeping for training only; older saves may lack it.
     state.setdefault("bn.num_batches_tracked", torch.tensor(0, dtype=torch.long))
+    _check_finite(state, path)
     net = _net_from_state_dict(state, path, _head_of(state, card, path), _inputs_of(state, card, path))
     return LoadedWeights(net=net, name=name, sha256=digest, path=path, card=card)
 

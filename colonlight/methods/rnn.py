@@ -168,7 +168,8 @@ class RecurrentGammaStream(MethodStream):
         raw = self.predict(frame)
         index, self._index = self._index, self._index + 1
         head = self._method.weights.head
-        info: dict[str, Any] = {"z": raw} if head != "gamma" else {"a": raw[0]}
+        recorded = [v if math.isfinite(v) else None for v in raw]  # JSON has no NaN: a failed output reads null
+        info: dict[str, Any] = {"z": recorded} if head != "gamma" else {"a": recorded[0]}
         if index < self._method.seeds:
             return [FrameResult(frame=frame, gamma=1.0, info={**info, "seed": True})]
         correction = head_correction(head, raw)

@@ -7,6 +7,7 @@ import pickle
 import stat
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -97,6 +98,40 @@ def test_garbage_and_missing(tmp_path: Path) -> None:
         load_weights(tmp_path / "x.pth")
     with pytest.raises(CheckpointError, match="no such checkpoint"):
         load_weights(tmp_path / "missing.safetensors")
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_any_garbage_bytes_are_a_checkpoint_error(tmp_path: Path, seed: int) -> None:
+    """Bytes that are not a checkpoint make the weights-only unpickler fail in many ways (KeyError, IndexError,
+    ...): every one is a CheckpointError naming the file, never an exception a caller cannot expect."""
+    rng = np.random.default_rng(seed)
+    path = tmp_path / f"garbage{seed}.pth"
+    path.write_bytes(b"junk\n" if seed == 0 else rng.integers(0, 256, int(rng.integers(1, 200)), np.uint8).tobytes())
+    with pytest.raises(CheckpointError, match=f"garbage{seed}.pth"):
+        load_weights(path)
+
+
+def test_a_state_dict_with_unnamed_entries_is_refused(tmp_path: Path) -> None:
+    torch.save({1: torch.zeros(1)}, tmp_path / "ints.pth")
+    with pytest.raises(CheckpointError, match="named tensors"):
+        load_weights(tmp_path / "ints.pth")
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf")])
+@pytest.mark.parametrize("fmt", ["pth", "safetensors"])
+def test_non_finite_weights_are_refused(tmp_path: Path, value: float, fmt: str) -> None:
+    """A network with a NaN or infinite weight corrects no frame; loading says so rather than every frame's
+    record reading "clamped"."""
+    net = GammaNet()
+    with torch.no_grad():
+        net.rnn_cnv.weight[0, 0, 0, 0] = value
+    path = tmp_path / f"damaged.{fmt}"
+    if fmt == "pth":
+        torch.save(net.state_dict(), path)
+    else:
+        save_weights(net, path, {"name": "damaged"})
+    with pytest.raises(CheckpointError, match=r"damaged\..*non-finite values .* in rnn_cnv\.weight"):
+        load_weights(path)
 
 
 class _Evil:

@@ -3,6 +3,7 @@ export (its ONNX test is in test_onnx_export.py, one test for the heads with raw
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -209,3 +210,22 @@ def test_a_curve_head_started_from_a_gain_gamma_checkpoint_starts_with_its_corre
     off = float((ours - theirs).abs().mean() * 255)
     moved = float((theirs - frames).abs().mean() * 255)
     assert off < 1.5 and moved > 4 * off, (off, moved)
+
+
+@pytest.mark.parametrize("head", ["gamma", "curve"])
+def test_an_overflowing_output_is_recorded_as_null_not_nan(tmp_path: Path, head: str) -> None:
+    """Finite weights can still overflow to infinity on a frame: the frame is left unchanged, flagged, and its
+    record stays JSON (which has no NaN or infinity; a strict reader refuses them)."""
+    torch.manual_seed(0)
+    net = GammaNet(head=head)
+    with torch.no_grad():
+        net.out_linear.weight.fill_(3e38)  # finite, but times any positive feature it overflows
+        net.out_linear.bias.fill_(3e38)
+    path = tmp_path / "overflow.safetensors"
+    save_weights(net.eval(), path, {"name": "overflow", "input_size": 32, "head": head, "seed_frames": 0})
+    frame = np.random.default_rng(2).integers(0, 256, (24, 40, 3), dtype=np.uint8)
+    (res,) = RecurrentGammaMethod(path, device="cpu").stream().push(frame)
+    raw = res.info["a"] if head == "gamma" else res.info["z"]
+    assert None in (raw if isinstance(raw, list) else [raw]), res.info
+    assert res.info["clamped"] and res.gamma == 1.0 and np.array_equal(res.frame, frame)
+    json.dumps(res.info, allow_nan=False)
