@@ -10,7 +10,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from colonlight.limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE
 
-from .display import console, error_line
+from .display import console, error_line, printable
 from .options import clip_mix, invocation
 
 if TYPE_CHECKING:
@@ -299,8 +299,10 @@ def train_cmd(
             resume=resume,
             on_step=on_step,
             on_epoch=on_epoch,
+            on_skip=_skip_line,
         )
     console.print(f"weights: {result.weights}\ncard:    {result.weights.with_suffix('.json')}")
+    _exit_if_skipped(result.skipped, " (listed in the card)")
 
 
 def _export_epoch(run_dir: Path, epoch: int) -> None:
@@ -329,13 +331,19 @@ def _train_zerodce(
     extra: dict[str, object],
 ) -> None:
     """Zero-DCE / Zero-DCE++ on every 3rd frame of the clips, without the colour-constancy loss (as the paper did)."""
-    from colonlight import clip_frames, train_zerodce
+    from colonlight import InputError, clip_frames, train_zerodce
+
+    skipped: list[str] = []
 
     def frames() -> Iterator[np.ndarray]:
         for clip in clips:
-            for f in clip_frames(clip, fps=fps or None):
-                if f.index % 3 == 0:
-                    yield f.image
+            try:
+                for f in clip_frames(clip, fps=fps or None):
+                    if f.index % 3 == 0:
+                        yield f.image
+            except InputError as exc:  # the clip's frames up to the damage are kept, the others go on
+                skipped.append(str(exc))
+                _skip_line(str(exc))
 
     stem = name if name != "colonlight-rnn" else variant
     result = train_zerodce(
@@ -353,6 +361,18 @@ def _train_zerodce(
         on_epoch=lambda e: console.print(f"epoch {e.epoch}: loss {e.loss:.4f}, {e.seconds:.0f} s"),
     )
     console.print(f"weights: {result.weights}\ncard:    {result.weights.with_suffix('.json')}")
+    _exit_if_skipped(skipped, "")
+
+
+def _skip_line(reason: str) -> None:
+    console.print(f"[red]skipped[/] {printable(reason)}", soft_wrap=True)
+
+
+def _exit_if_skipped(skipped: list[str], where: str) -> None:
+    """The model is written, but not from every clip asked for: say so and exit 1, as enhance does."""
+    if skipped:
+        error_line(f"{len(skipped)} clip(s) could not be used and were left out{where}")
+        raise typer.Exit(1)
 
 
 def register(app: typer.Typer) -> None:

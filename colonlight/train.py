@@ -110,6 +110,7 @@ class TrainResult:
     weights: Path
     card: dict[str, Any]
     history: list[EpochRecord] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)  # one line for each clip left out (unreadable, too short...)
 
 
 def load_clip_array(path: Path, size: int, fps: float | None) -> np.ndarray:
@@ -154,24 +155,48 @@ def initial_net(cfg: TrainConfig) -> GammaNet:
     return net
 
 
-def load_sequences(clips: Sequence[Path], cfg: TrainConfig) -> SequenceSet:
-    """The training windows of ``clips``; for a supervised objective, with each clip's clean frames."""
-    arrays = [load_clip_array(p, cfg.size, cfg.fps) for p in clips]
-    clean: list[np.ndarray] | None = None
-    if cfg.supervised:
-        clean = []
-        for p in clips:
-            folder = clean_folder(p)
-            if folder is None:
-                raise InputError(f"{p}: objective {cfg.objective!r} needs clean frames beside the clip (clean/)")
-            pair = load_clip_array(folder, cfg.size, cfg.fps)
-            if pair.shape != arrays[len(clean)].shape:
-                raise InputError(
-                    f"{p}: its clean frames ({folder}) do not match it frame for frame "
-                    f"({len(pair)} clean, {len(arrays[len(clean)])} recorded at --fps {cfg.fps})"
-                )
+def load_clip_pair(path: Path, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarray | None]:
+    """One clip's frames and, for a supervised objective, its clean frames (same shape); InputError if either
+    cannot be used."""
+    recorded = load_clip_array(path, cfg.size, cfg.fps)
+    if not cfg.supervised:
+        return recorded, None
+    folder = clean_folder(path)
+    if folder is None:
+        raise InputError(f"{path}: objective {cfg.objective!r} needs clean frames beside the clip (clean/)")
+    clean = load_clip_array(folder, cfg.size, cfg.fps)
+    if clean.shape != recorded.shape:
+        raise InputError(
+            f"{path}: its clean frames ({folder}) do not match it frame for frame "
+            f"({len(clean)} clean, {len(recorded)} recorded at --fps {cfg.fps})"
+        )
+    return recorded, clean
+
+
+def load_sequences(
+    clips: Sequence[Path], cfg: TrainConfig, on_skip: Callable[[str], None] | None = None
+) -> tuple[SequenceSet, list[str]]:
+    """The training windows of the usable ``clips`` (for a supervised objective, with each clip's clean frames)
+    and a one-line reason for each clip left out: one unreadable video among hundreds costs that clip, not the
+    run (``on_skip`` hears each reason as it is found; the model card lists them)."""
+    arrays: list[np.ndarray] = []
+    clean: list[np.ndarray] = []
+    skipped: list[str] = []
+    for path in clips:
+        try:
+            recorded, pair = load_clip_pair(path, cfg)
+        except InputError as exc:
+            skipped.append(str(exc))
+            if on_skip:
+                on_skip(str(exc))
+            continue
+        arrays.append(recorded)
+        if pair is not None:
             clean.append(pair)
-    return SequenceSet(arrays, cfg.seq_len, cfg.stride, clean, relative=cfg.objective == "relative")
+    sequences = SequenceSet(
+        arrays, cfg.seq_len, cfg.stride, clean if cfg.supervised else None, relative=cfg.objective == "relative"
+    )
+    return sequences, skipped
 
 
 def window_starts(n_frames: int, seq_len: int, stride: int) -> list[int]:
@@ -522,28 +547,33 @@ def train_model(
     resume: bool = True,
     on_step: ProgressFn | None = None,
     on_epoch: Callable[[EpochRecord], None] | None = None,
+    on_skip: Callable[[str], None] | None = None,
 ) -> TrainResult:
     """Train on ``train_clips`` (videos or frame folders), validate on ``val_clips``, write
     ``run_dir/NAME.safetensors``.
 
     A state is saved after every epoch in ``run_dir/checkpoints``; with ``resume`` a rerun continues from the last
     one. Runs are deterministic for a given seed, data and thread count. ``on_step(epoch, step, steps, loss)``
-    reports progress.
+    reports progress; a clip that cannot be used is left out, its reason passed to ``on_skip`` and kept in the
+    card (``TrainResult.skipped``).
     """
     run_dir = Path(run_dir)
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed)
-    train_set = load_sequences(train_clips, cfg)
-    val_set = load_sequences(val_clips, cfg)
+    train_set, train_skipped = load_sequences(train_clips, cfg, on_skip)
+    val_set, val_skipped = load_sequences(val_clips, cfg, on_skip)
     if len(train_set) == 0:
-        raise InputError(f"no training sequences: clips need at least {cfg.seq_len} frames")
+        left_out = f" ({len(train_skipped)} of {len(train_clips)} clips could not be used)" if train_skipped else ""
+        raise InputError(f"no training sequences: clips need at least {cfg.seq_len} frames{left_out}")
 
-    counts = {
-        "train_clips": len(train_clips),
+    counts: dict[str, Any] = {
+        "train_clips": len(train_clips) - len(train_skipped),
         "train_sequences": len(train_set),
-        "val_clips": len(val_clips),
+        "val_clips": len(val_clips) - len(val_skipped),
         "val_sequences": len(val_set),
     }
+    if train_skipped or val_skipped:
+        counts["skipped_clips"] = train_skipped + val_skipped
     net = initial_net(cfg)
     net.train()
     if cfg.frozen_bn:
@@ -585,7 +615,7 @@ def train_model(
     net.eval()
     weights_path = run_dir / f"{name}.safetensors"
     card = save_weights(net, weights_path, model_card(net, cfg, name, history, counts, card_extra))
-    return TrainResult(weights=weights_path, card=card, history=history)
+    return TrainResult(weights=weights_path, card=card, history=history, skipped=train_skipped + val_skipped)
 
 
 def model_card(
@@ -593,7 +623,7 @@ def model_card(
     cfg: TrainConfig,
     name: str,
     history: Sequence[EpochRecord],
-    counts: dict[str, int],
+    counts: dict[str, Any],
     card_extra: dict[str, Any] | None,
 ) -> dict[str, Any]:
     """The model card of a run's weights after ``history``'s epochs (``counts``: clips and windows trained and

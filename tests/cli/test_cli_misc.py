@@ -6,6 +6,8 @@ import json
 from pathlib import Path
 
 import av
+import cv2
+import numpy as np
 import pytest
 from colonlight_cli.main import app
 from typer.testing import CliRunner
@@ -221,3 +223,23 @@ def test_train_with_an_unreadable_init_is_an_error_naming_it(
     assert result.exit_code in (1, 2) and name in unboxed, result.output
     assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
     assert "Traceback" not in result.output
+
+
+def test_train_leaves_out_an_unreadable_clip_names_it_and_exits_1_with_the_model_written(tmp_path: Path) -> None:
+    data = tmp_path / "data"
+    data.mkdir()
+    rng = np.random.default_rng(0)
+    for name in ("a.mp4", "c.mp4"):  # real videos, the flicker a training run is for
+        writer = cv2.VideoWriter(str(data / name), cv2.VideoWriter_fourcc(*"mp4v"), 18, (48, 48))
+        for _ in range(24):
+            writer.write(rng.integers(20, 200, (48, 48, 3), dtype=np.uint8))
+        writer.release()
+    (data / "b.mp4").write_bytes(b"junk, not a video")
+    out = tmp_path / "run"
+    args = ["train", str(data), "-o", str(out), "--epochs", "1", "--seq-len", "8", "--size", "32"]
+    result = runner.invoke(app, args, env={"COLUMNS": "400"})
+    assert result.exit_code == 1, result.output
+    assert "skipped" in result.output and "b.mp4: not a video" in result.output
+    assert "1 clip(s) could not be used and were left out" in result.output and "Traceback" not in result.output
+    card = json.loads((out / "colonlight-rnn.json").read_text())
+    assert [line.split(":")[0].endswith("b.mp4") for line in card["training"]["skipped_clips"]] == [True]

@@ -187,3 +187,22 @@ def test_train_on_synthetic_folders_reads_their_lossless_frames_beside_clean(tmp
     assert res.exit_code == 0, res.output
     card = json.loads((run / "colonlight-rnn.json").read_text())
     assert card["head"] == "gain-gamma" and card["training"]["objective"].startswith("mean |corrected - clean|")
+
+
+def test_a_clip_that_cannot_be_read_is_left_out_and_named_not_fatal(tmp_path: Path) -> None:
+    """One unreadable video among the training clips costs that clip, not the run: its reason reaches the
+    caller as it is found, and the card lists it; with no usable clip left the run is an InputError saying so."""
+    good = [_flicker_clip(tmp_path / f"c{i}", seed=i) for i in range(3)]
+    broken = tmp_path / "broken.mp4"
+    broken.write_bytes(b"not a video")
+    empty = tmp_path / "empty.mp4"
+    empty.write_bytes(b"")
+    cfg = TrainConfig(size=32, seq_len=8, stride=6, batch=2, epochs=1, lr=1e-3, seed=0)
+    heard: list[str] = []
+    res = train_model([good[0], broken, good[1]], [empty, good[2]], tmp_path / "run", cfg, on_skip=heard.append)
+    assert len(heard) == 2 and "broken.mp4" in heard[0] and "empty.mp4" in heard[1], heard
+    assert res.skipped == heard and res.card["training"]["skipped_clips"] == heard
+    assert res.card["training"]["train_clips"] == 2 and res.card["training"]["val_clips"] == 1
+    assert res.history[0].val_loss is not None and load_weights(res.weights).net is not None
+    with pytest.raises(InputError, match=r"2 of 2 clips could not be used"):
+        train_model([broken, empty], [], tmp_path / "none", cfg)
