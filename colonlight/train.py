@@ -563,6 +563,11 @@ def train_model(
     train_set, train_skipped = load_sequences(train_clips, cfg, on_skip)
     val_set, val_skipped = load_sequences(val_clips, cfg, on_skip)
     if len(train_set) == 0:
+        if train_skipped and len(train_skipped) == len(train_clips):  # the reason is the clips', not their length
+            raise InputError(
+                f"no training sequences: {len(train_skipped)} of {len(train_clips)} clips could not be used "
+                f"(the first: {train_skipped[0]})"
+            )
         left_out = f" ({len(train_skipped)} of {len(train_clips)} clips could not be used)" if train_skipped else ""
         raise InputError(f"no training sequences: clips need at least {cfg.seq_len} frames{left_out}")
 
