@@ -36,9 +36,10 @@ def clip_overrides(i: int) -> dict[str, object]:
     return {"undisturbed_seeds": True, "close_occluder": "forbid" if i % 3 else "random"}
 
 
-def validation_clips(n: int) -> list[tuple[dict[str, object], SynthConfig, list]]:  # type: ignore[type-arg]
+def validation_clips(n: int, first: int = 0) -> list[tuple[dict[str, object], SynthConfig, list]]:  # type: ignore[type-arg]
+    """Clips ``first`` .. ``first + n - 1`` of the validation sequence (seed ``SEED0 + i``, clip ``i``'s mix)."""
     out = []
-    for i in range(n):
+    for i in range(first, first + n):
         seed, over = SEED0 + i, clip_overrides(i)
         cfg = SynthConfig.sample(
             np.random.default_rng([seed, 1]), split="heldout", width=WIDTH, height=HEIGHT, n_frames=FRAMES, **over
@@ -108,6 +109,12 @@ def main(argv: list[str] | None = None) -> str:
     parser = argparse.ArgumentParser(prog="python -m benchmarks model_validation")
     parser.add_argument("--clips", type=int, default=8)
     parser.add_argument(
+        "--first",
+        type=int,
+        default=0,
+        help="index of the first clip (seed 720000 + FIRST): fresh clips to confirm a lead found on the first ones",
+    )
+    parser.add_argument(
         "--weights", action="append", default=[], help="checkpoints to score (default: the shipped one)"
     )
     parser.add_argument(
@@ -119,7 +126,7 @@ def main(argv: list[str] | None = None) -> str:
         "--methods", default="", help="built-in baselines to score too, comma-separated (e.g. he,clahe)"
     )
     args = parser.parse_args(argv or [])
-    clips = validation_clips(args.clips)
+    clips = validation_clips(args.clips, args.first)
     rows = [] if args.no_references else [score(label, None, clips) for label in ("none", *REFERENCE_LABELS)]
     for name in filter(None, args.methods.split(",")):
         rows.append(score(name, None, clips, baseline=name))
@@ -127,7 +134,8 @@ def main(argv: list[str] | None = None) -> str:
         rows.append(score(w or "rnn (shipped)", w or None, clips))
     return "\n".join(
         [
-            f"## Validation: {args.clips} held-out clips x {FRAMES} frames ({WIDTH}x{HEIGHT}), seeds {SEED0}..",
+            f"## Validation: {args.clips} held-out clips x {FRAMES} frames ({WIDTH}x{HEIGHT}), "
+            f"seeds {SEED0 + args.first}..{SEED0 + args.first + args.clips - 1}",
             "",
             markdown_table(
                 [
