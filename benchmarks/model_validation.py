@@ -5,10 +5,11 @@ tracked fraction with per-frame brightness fixed (the paper's RNNSLAM setting) a
 size training never used (160x128). The first clip of every four is steady (scored only for darkening); the others
 start with two undisturbed frames.
 
-Run: ``python -m benchmarks model_validation [--clips 8] [--weights W ...] [--methods he,clahe]`` (``none``,
+Run: ``python -m benchmarks model_validation [--clips 8] [--first 0] [--weights W ...] [--methods he,clahe]`` (``none``,
 ``clean`` and the three oracles unless ``--no-references``: the ceilings of one global correction per frame (the
 shipped curve head's family), of a gain and a gamma (the previous default's) and of one gamma; ``--methods`` adds
-built-in baselines, to see whether a candidate is ahead of them).
+built-in baselines, to see whether a candidate is ahead of them; ``--first N`` starts at clip N, so that a lead
+found on the first clips can be checked on clips that chose nothing).
 """
 
 from __future__ import annotations
