@@ -5,11 +5,11 @@ tracked fraction with per-frame brightness fixed (the paper's RNNSLAM setting) a
 size training never used (160x128). The first clip of every four is steady (scored only for darkening); the others
 start with two undisturbed frames.
 
-Run: ``python -m benchmarks model_validation [--clips 8] [--first 0] [--weights W ...] [--methods he,clahe]`` (``none``,
-``clean`` and the three oracles unless ``--no-references``: the ceilings of one global correction per frame (the
-shipped curve head's family), of a gain and a gamma (the previous default's) and of one gamma; ``--methods`` adds
-built-in baselines, to see whether a candidate is ahead of them; ``--first N`` starts at clip N, so that a lead
-found on the first clips can be checked on clips that chose nothing).
+Run: ``python -m benchmarks model_validation [--clips 8] [--first 0] [--weights W ...] [--methods he,clahe]``
+(``none``, ``clean`` and the three oracles unless ``--no-references``: the ceilings of one global correction per
+frame (the shipped curve head's family), of a gain and a gamma (the previous default's) and of one gamma;
+``--methods`` adds built-in baselines, to see whether a candidate is ahead of them; ``--first N`` starts at clip
+N, so that a lead found on the first clips can be checked on clips that chose nothing).
 """
 
 from __future__ import annotations
@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> str:
         "--first",
         type=int,
         default=0,
-        help="index of the first clip (seed 720000 + FIRST): fresh clips to confirm a lead found on the first ones",
+        help=f"index of the first clip (seed {SEED0} + FIRST): fresh clips to confirm a lead found on the first ones",
     )
     parser.add_argument(
         "--weights", action="append", default=[], help="checkpoints to score (default: the shipped one)"
