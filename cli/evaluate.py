@@ -206,6 +206,7 @@ def evaluate(
     # the method options, as enhance takes them: each goes to the methods in --methods that take it
     weights: str | None = options.Weights,
     model_size: str | None = options.ModelSize,
+    tone_match: str | None = options.ToneMatch,
     gamma: str | None = options.Gamma,
     device: str | None = options.Device,
     runtime: str | None = options.Runtime,

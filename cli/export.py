@@ -29,7 +29,7 @@ def export(
         "--model-size",
         envvar="COLONLIGHT_MODEL_SIZE",
         help=f"Network input size in pixels the graph is fixed at ({MIN_MODEL_SIZE}..{MAX_MODEL_SIZE}), or 'auto' "
-        "(the default): the size the weights were trained at (their card; 48 for the shipped model), else "
+        "(the default): the size the weights' card gives (32 for the shipped model), else "
         f"{DEFAULT_MODEL_SIZE}. 'full' cannot be exported.",
     ),
     debug: bool = options.Debug,

@@ -59,6 +59,7 @@ def method_flag(name: str) -> Any:
 Weights = method_flag("weights")
 ModelSize = method_flag("model_size")
 Gamma = method_flag("gamma")
+ToneMatch = method_flag("tone_match")
 Device = method_flag("device")
 Runtime = method_flag("runtime")
 

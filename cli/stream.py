@@ -112,6 +112,7 @@ def stream(
     # the method options: values checked by their declaration, read through options.method_kwargs
     weights: str | None = options.Weights,
     model_size: str | None = options.ModelSize,
+    tone_match: str | None = options.ToneMatch,
     gamma: str | None = options.Gamma,
     device: str | None = options.Device,
     runtime: str | None = options.Runtime,

@@ -20,6 +20,7 @@ from typing import Any, Literal
 
 from ..errors import MethodOptionError
 from ..limits import MAX_GAMMA, MAX_MODEL_SIZE, MIN_MODEL_SIZE
+from ..tone_match import DEFAULT_TONE_MATCH
 
 Kind = Literal["number", "size", "choice", "path", "text"]
 Scope = Literal["request", "host"]
@@ -182,11 +183,22 @@ OPTIONS: tuple[MethodOption, ...] = (
         "size",
         ("rnn",),
         f"Network input side in pixels ({MIN_MODEL_SIZE}..{MAX_MODEL_SIZE}), 'full' for full-resolution input (the "
-        "release's way), or 'auto': the size the weights were trained at (their card; 48 for the shipped model).",
+        "release's way), or 'auto': the size the weights' card gives (32 for the shipped model, trained at 48).",
         default="auto",
         minimum=MIN_MODEL_SIZE,
         maximum=MAX_MODEL_SIZE,
         words=("full", "auto"),
+    ),
+    MethodOption(
+        "tone_match",
+        "number",
+        ("rnn",),
+        "How much of each frame's tones to pull toward the previous output frame's, 0 (off) .. 1: consecutive "
+        "frames show nearly the same surface, so this cancels most of what one frame's estimate gets wrong. "
+        f"Default: {DEFAULT_TONE_MATCH:g} for colonlight's own models, 0 for the paper's one-gamma models (the "
+        "authors' checkpoint stays exact to its release).",
+        minimum=0.0,
+        maximum=1.0,
     ),
     MethodOption(
         "gamma",

@@ -26,6 +26,7 @@ from ..device import resolve_device
 from ..errors import OptionError
 from ..limits import DEFAULT_MODEL_SIZE, MAX_MODEL_SIZE, MIN_MODEL_SIZE
 from ..model import State
+from ..tone_match import ToneMatcher, default_weight
 from .base import FrameResult, Method, MethodStream, check_frame
 from .rnn_onnx import make_step
 
@@ -68,6 +69,15 @@ def clamp_gain_gamma(z0: float, z1: float) -> tuple[float, float, bool]:
 
 #: The curve head's summary gamma is the power law through its value here (the middle knot).
 CURVE_SUMMARY_AT = CURVE_KNOTS[len(CURVE_KNOTS) // 2]
+
+
+def table_gamma(lut: np.ndarray) -> float:
+    """The summary gamma of an applied table, as the curve head's (the power law through its value at
+    ``CURVE_SUMMARY_AT``, kept in the gamma range): what the records say of a table the tone match changed."""
+    level = CURVE_SUMMARY_AT * 255.0
+    at = float(np.interp(level, np.arange(256), lut.astype(np.float64))) / 255.0
+    gamma = math.log(min(max(at, 1e-9), 1.0)) / math.log(CURVE_SUMMARY_AT)
+    return min(max(gamma, GAMMA_MIN), GAMMA_MAX)
 
 
 def curve_correction(z: list[float]) -> tuple[np.ndarray | None, list[float], float, bool]:
@@ -149,6 +159,7 @@ class RecurrentGammaStream(MethodStream):
         self._method = method
         self._state: State | None = None
         self._index = 0
+        self._matcher = ToneMatcher(method.tone_match) if method.tone_match > 0 else None
 
     def predict(self, frame: np.ndarray) -> list[float]:
         """Advance the recurrent state by one frame and return the head's raw outputs (``[a]`` for the
@@ -171,12 +182,18 @@ class RecurrentGammaStream(MethodStream):
         recorded = [v if math.isfinite(v) else None for v in raw]  # JSON has no NaN: a failed output reads null
         info: dict[str, Any] = {"z": recorded} if head != "gamma" else {"a": recorded[0]}
         if index < self._method.seeds:
+            if self._matcher is not None:
+                self._matcher.keep(frame, IDENTITY_LUT)  # written unchanged: the next frame matches to it
             return [FrameResult(frame=frame, gamma=1.0, info={**info, "seed": True})]
         correction = head_correction(head, raw)
         info.update(correction.extra)
         if correction.clamped:
             info["clamped"] = True
-        corrected = frame if correction.lut is None else apply_lut(frame, correction.lut)
+        lut = correction.lut
+        if self._matcher is not None:
+            lut = self._matcher.table(frame, lut)
+            info["applied_gamma"] = table_gamma(lut)
+        corrected = frame if lut is None else apply_lut(frame, lut)
         return [FrameResult(frame=corrected, gamma=correction.gamma, info=info)]
 
 
@@ -192,6 +209,9 @@ class RecurrentGammaMethod(Method):
         seeds: leading frames passed through unchanged while the state builds; ``None``: the card's
             ``seed_frames`` (0 for the shipped default, trained to correct every frame), else 2 (the release).
         runtime: ``torch`` or ``onnxruntime`` (the step on ONNX Runtime, CPU only; ``methods/rnn_onnx``).
+        tone_match: how much of each frame's tones to pull toward the previous output's (``tone_match``), 0..1;
+            ``None``: ``DEFAULT_TONE_MATCH`` for colonlight's own heads, 0 for the paper's one-gamma head (the
+            release has no such step, and the authors' checkpoint must stay exact to it).
     """
 
     name = "rnn"
@@ -203,6 +223,7 @@ class RecurrentGammaMethod(Method):
         device: str = "auto",
         seeds: int | None = None,
         runtime: str = "torch",
+        tone_match: float | None = None,
     ) -> None:
         self.device = resolve_device(device)
         if isinstance(weights, LoadedWeights):  # a copy of the caller's net: moving and re-laying it is ours
@@ -218,6 +239,11 @@ class RecurrentGammaMethod(Method):
             raise OptionError(f"seeds must be >= 0, got {seeds}")
         self.seeds = seeds
         self.runtime = runtime
+        if tone_match is None:
+            tone_match = default_weight(self.weights.head)
+        if not 0.0 <= tone_match <= 1.0:
+            raise OptionError(f"tone_match must be within 0..1, got {tone_match}")
+        self.tone_match = float(tone_match)
         self.step = make_step(self.weights, self.model_size, self.device, runtime)  # net.step or ONNX Runtime's
 
     def stream(self) -> RecurrentGammaStream:
@@ -230,6 +256,7 @@ class RecurrentGammaMethod(Method):
             "gamma_range": [GAMMA_MIN, GAMMA_MAX],
             "device": str(self.device),
             **({"runtime": self.runtime} if self.runtime != "torch" else {}),
+            **({"tone_match": self.tone_match} if self.tone_match > 0 else {}),
         }
         if self.weights.head != "gamma":  # older outputs' records stay as they were
             params["head"] = self.weights.head

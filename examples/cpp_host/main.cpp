@@ -5,8 +5,9 @@
 //
 // Reads raw RGB24 frames of WIDTH x HEIGHT from standard input, carries the recurrent state from frame to frame
 // (h, c in -> h_out, c_out out; zeros at the start), turns the step's output into the frame's correction by the
-// rule the sidecar gives for its head (gamma, gain-gamma or curve), applies it to the full-resolution frame
-// through a 256-entry table, and prints one JSON line per frame on standard output. `--out FILE` writes the
+// rule the sidecar gives for its head (gamma, gain-gamma or curve), pulls its tones toward the last output
+// frame's where the sidecar's tone_match says so, applies it to the full-resolution frame through a 256-entry
+// table, and prints one JSON line per frame on standard output. `--out FILE` writes the
 // enhanced frames (raw RGB24) there. Errors: one line on standard error, exit 1 (2 for a usage error).
 #include <onnxruntime_cxx_api.h>
 
@@ -42,6 +43,15 @@ struct Correction {
     std::vector<double> curve;  // the curve head's values at the knots
     bool clamped = false;
 };
+
+// np.interp's rule: linear between the two knots around x, the end values outside.
+double interp(double x, const std::vector<double>& xs, const std::vector<double>& ys) {
+    if (x <= xs.front()) return ys.front();
+    if (x >= xs.back()) return ys.back();
+    std::size_t j = std::upper_bound(xs.begin(), xs.end(), x) - xs.begin() - 1;
+    double slope = (ys[j + 1] - ys[j]) / (xs[j + 1] - xs[j]);
+    return slope * (x - xs[j]) + ys[j];
+}
 
 // The sidecar's correction rule for one head (its "correction" entry: the numbers of its "gamma" formula).
 struct Rule {
@@ -122,15 +132,6 @@ struct Rule {
         return c;
     }
 
-    // np.interp's rule: linear between the two knots around x, the end values outside.
-    static double interp(double x, const std::vector<double>& xs, const std::vector<double>& ys) {
-        if (x <= xs.front()) return ys.front();
-        if (x >= xs.back()) return ys.back();
-        std::size_t j = std::upper_bound(xs.begin(), xs.end(), x) - xs.begin() - 1;
-        double slope = (ys[j + 1] - ys[j]) / (xs[j + 1] - xs[j]);
-        return slope * (x - xs[j]) + ys[j];
-    }
-
     Correction curve_head(const std::vector<float>& z) const {
         Correction c;
         std::size_t segments = knots.size() - 1;
@@ -156,6 +157,127 @@ struct Rule {
                 std::nearbyint(255.0 * std::clamp(interp(v / 255.0, knots, c.curve), 0.0, 1.0)));
         c.apply = true;
         return c;
+    }
+};
+
+// colonlight.tone_match (the sidecar's "tone_match"): each output frame's tones pulled toward the last output
+// frame's, over a subsample of the pixels not specular in either input frame. Off when its weight is 0 (the
+// paper's one-gamma head) or the sidecar predates it.
+class ToneMatcher {
+   public:
+    explicit ToneMatcher(const json& side) {
+        if (!side.contains("tone_match")) return;
+        const json& t = side.at("tone_match");
+        weight_ = t.at("weight").get<double>();
+        sample_pixels_ = t.at("sample_pixels").get<double>();
+        specular_ = t.at("specular_level").get<int>();
+        min_shared_ = t.at("min_shared").get<int>();
+    }
+
+    bool on() const { return weight_ > 0.0; }
+
+    // The table to apply to rgb: the head's table, then weight of the match of its result to the last output.
+    Lut table(const cv::Mat& rgb, const Lut& head) {
+        cv::Mat sample = subsample(rgb), ok = usable(sample);
+        Lut out = head;
+        if (has_previous_ && previous_.size() == sample.size()) {
+            cv::Mat shared;
+            cv::bitwise_and(ok, previous_ok_, shared);
+            if (cv::countNonZero(shared) >= min_shared_) {
+                std::vector<double> match = matching(histogram(sample, shared, head),
+                                                     histogram(previous_, shared, previous_table_));
+                Lut pulled{};
+                double running = 0.0;
+                for (int v = 0; v < 256; ++v) {
+                    double p = (1.0 - weight_) * v + weight_ * match[v];
+                    running = v == 0 ? p : std::max(running, p);
+                    pulled[v] = static_cast<std::uint8_t>(std::clamp(std::nearbyint(running), 0.0, 255.0));
+                }
+                for (int v = 0; v < 256; ++v) out[v] = pulled[head[v]];
+            }
+        }
+        remember(sample, ok, out);
+        return out;
+    }
+
+    // A frame written through table without matching (a seed frame): the next frame matches to it.
+    void keep(const cv::Mat& rgb, const Lut& table) {
+        cv::Mat sample = subsample(rgb);
+        remember(sample, usable(sample), table);
+    }
+
+   private:
+    double weight_ = 0.0, sample_pixels_ = 1.0;
+    int specular_ = 255, min_shared_ = 0;
+    bool has_previous_ = false;
+    cv::Mat previous_, previous_ok_;
+    Lut previous_table_{};
+
+    void remember(const cv::Mat& sample, const cv::Mat& ok, const Lut& table) {
+        previous_ = sample.clone();  // the caller's frame buffer is reused
+        previous_ok_ = ok;
+        previous_table_ = table;
+        has_previous_ = true;
+    }
+
+    cv::Mat subsample(const cv::Mat& rgb) const {
+        int step = std::max(1, static_cast<int>(std::ceil(std::sqrt(static_cast<double>(rgb.rows) * rgb.cols /
+                                                                        sample_pixels_))));
+        if (step == 1) return rgb;
+        cv::Mat sample;
+        cv::resize(rgb, sample, cv::Size((rgb.cols + step - 1) / step, (rgb.rows + step - 1) / step), 0, 0,
+                   cv::INTER_NEAREST);
+        return sample;
+    }
+
+    cv::Mat usable(const cv::Mat& sample) const {
+        cv::Mat gray;
+        cv::cvtColor(sample, gray, cv::COLOR_RGB2GRAY);
+        return gray <= specular_;
+    }
+
+    // The pooled R, G, B counts of table[sample] over mask.
+    static std::vector<double> histogram(const cv::Mat& sample, const cv::Mat& mask, const Lut& table) {
+        std::vector<double> counts(256, 0.0);
+        const int bins = 256;
+        const float range[] = {0.0f, 256.0f};
+        const float* ranges[] = {range};
+        for (int c = 0; c < 3; ++c) {
+            cv::Mat h;
+            cv::calcHist(&sample, 1, &c, mask, h, 1, &bins, ranges);
+            for (int v = 0; v < 256; ++v) counts[table[v]] += h.at<float>(v);
+        }
+        return counts;
+    }
+
+    // The levels with counts and their mid-bin quantiles.
+    static void quantiles(const std::vector<double>& counts, std::vector<double>& levels, std::vector<double>& q) {
+        double total = 0.0, running = 0.0;
+        for (double n : counts) total += n;
+        for (int v = 0; v < 256; ++v) {
+            running += counts[v];
+            if (counts[v] > 0.0) {
+                levels.push_back(v);
+                q.push_back((running - counts[v] / 2) / total);
+            }
+        }
+    }
+
+    // The table that maps tones counted as source onto tones counted as reference (tone_match.matching_table).
+    static std::vector<double> matching(const std::vector<double>& source, const std::vector<double>& reference) {
+        std::vector<double> ls, qs, lr, qr;
+        quantiles(source, ls, qs);
+        quantiles(reference, lr, qr);
+        std::vector<double> mapped;
+        for (double q : qs) mapped.push_back(interp(q, qr, lr));
+        std::vector<double> table(256);
+        for (int v = 0; v < 256; ++v) {
+            double t = v < ls.front()  ? mapped.front() - (ls.front() - v)
+                       : v > ls.back() ? mapped.back() + (v - ls.back())
+                                       : interp(v, ls, mapped);
+            table[v] = std::clamp(t, 0.0, 255.0);
+        }
+        return table;
     }
 };
 
@@ -197,6 +319,7 @@ int run(const std::string& model, int width, int height, const std::string& out_
     const int presample = frame_input.at("presample").get<int>();
     const long seeds = side.at("seed_frames").at("count").get<long>();
     const Rule rule = Rule::from_sidecar(side);
+    ToneMatcher matcher(side);
 
     // Inputs: the frame, then the state tensors (zeros); outputs: the head's, then each state's "<name>_out".
     std::vector<std::string> in_names, out_names;
@@ -263,6 +386,16 @@ int run(const std::string& model, int width, int height, const std::string& out_
 
         const bool seed = index < seeds;  // seeds build the state and pass through unchanged
         Correction c = seed ? Correction{} : rule.correct(head);
+        if (matcher.on()) {
+            Lut identity{};
+            for (int v = 0; v < 256; ++v) identity[v] = static_cast<std::uint8_t>(v);
+            if (seed) {
+                matcher.keep(rgb, identity);
+            } else {
+                c.lut = matcher.table(rgb, c.apply ? c.lut : identity);
+                c.apply = true;
+            }
+        }
         std::string line = "{\"index\": " + std::to_string(index) + ", \"head\": [";
         for (std::size_t i = 0; i < head.size(); ++i) line += (i ? ", " : "") + number(head[i]);
         line += "], \"seed\": " + std::string(seed ? "true" : "false") + ", \"gamma\": " + number(c.gamma);

@@ -18,9 +18,11 @@ pytest.importorskip("onnxruntime", reason="the export extra (onnxruntime) is not
 pytest.importorskip("onnxscript", reason="the export extra (onnxscript) is not installed")
 
 from colonlight.checkpoint import LoadedWeights, load_weights  # noqa: E402
+from colonlight.curves import IDENTITY_LUT
 from colonlight.methods.rnn import PRESAMPLE, RecurrentGammaMethod, head_correction  # noqa: E402
 from colonlight.onnx_export import export_onnx, onnx_sidecar_path  # noqa: E402
 from colonlight.sources import clip_frames  # noqa: E402
+from colonlight.tone_match import ToneMatcher
 from colonlight.video import VideoWriter  # noqa: E402
 
 from ...networks import random_head_weights  # noqa: E402
@@ -120,6 +122,8 @@ def test_the_cpp_host_matches_torch_frame_by_frame(
 
     method = RecurrentGammaMethod(weights=weights, model_size=size, device="cpu")
     seeds, stream = method.seeds, method.stream()
+    # the host's own tone match, run by colonlight's on the host's tables (off for the paper's gamma head)
+    matcher = ToneMatcher(method.tone_match) if method.tone_match > 0 else None
     theirs = np.array([r["head"] for r in records], dtype=np.float64)
     ours_raw, moved = [], []
     for i, (frame, record, out) in enumerate(zip(clip, records, enhanced, strict=True)):
@@ -129,9 +133,13 @@ def test_the_cpp_host_matches_torch_frame_by_frame(
         assert record["seed"] == (i < seeds)
         if record["seed"]:
             assert np.array_equal(out, frame) and record["gamma"] == 1.0
+            if matcher is not None:
+                matcher.keep(frame, IDENTITY_LUT)
             continue
         # The host's correction is colonlight's rule exactly, given the same raw outputs ...
         lut, values = _python_correction(head, [float(v) for v in record["head"]])
+        if matcher is not None:
+            lut = matcher.table(frame, lut)
         assert np.array_equal(out, lut[frame]), f"frame {i}: the host's table differs from colonlight's"
         for key, want in values.items():
             assert np.allclose(record[key], want, rtol=0, atol=1e-12), (i, key, record[key], want)

@@ -34,6 +34,7 @@ from colonlight.model import HEAD_OUTPUTS, GammaNet, State  # noqa: E402
 from colonlight.onnx_export import export_onnx, onnx_sidecar_path, read_sidecar  # noqa: E402
 from colonlight.onnx_step import cpu_session  # noqa: E402
 from colonlight.sources import clip_frames  # noqa: E402
+from colonlight.tone_match import DEFAULT_TONE_MATCH, SAMPLE_PIXELS
 from colonlight.video import VideoWriter  # noqa: E402
 
 from ...networks import random_head_weights  # noqa: E402
@@ -104,8 +105,9 @@ def test_onnx_runtime_matches_torch_over_a_100_frame_clip(
         weights = request.getfixturevalue("authors_checkpoint")
         out = _export(tmp_path / "authors.onnx", "--weights", str(weights))
     side = read_sidecar(out)
-    assert side["input_size"] == 48  # the shipped card says 48; the authors' .pth has no card: the default
-    onnx_a, torch_a = _onnx_a(out, clip), _torch_a(weights, clip, 48)
+    size = 32 if which == "shipped" else 48  # the shipped card says 32; the authors' .pth has no card: the default
+    assert side["input_size"] == size
+    onnx_a, torch_a = _onnx_a(out, clip), _torch_a(weights, clip, size)
     assert onnx_a.shape == torch_a.shape and onnx_a.shape[0] == CLIP_FRAMES
     assert torch_a.std() > 1e-3, "the clip must move the network's output, or the comparison proves little"
     assert np.max(np.abs(onnx_a - torch_a)) <= TOLERANCE
@@ -118,13 +120,13 @@ def test_sidecar_says_what_a_host_needs(shipped_onnx: Path) -> None:
     shipped = load_weights()
     assert side["model"]["name"] == "colonlight-rnn" and side["model"]["sha256"] == shipped.sha256
     assert side["onnx"]["sha256"] == hashlib.sha256(out.read_bytes()).hexdigest()
-    assert side["colonlight_version"] and side["input_size"] == 48
+    assert side["colonlight_version"] and side["input_size"] == 32
     # the shipped model reads a change (input delta): its last correction and last output frame are state too
     state = ["h", "c", "z_last", "y_last"]
     assert [i["name"] for i in side["inputs"]] == ["frame", *state]
-    assert side["inputs"][0]["shape"] == [1, 3, 48, 48] and side["inputs"][1]["shape"] == [1, 32, 48, 48]
+    assert side["inputs"][0]["shape"] == [1, 3, 32, 32] and side["inputs"][1]["shape"] == [1, 32, 32, 32]
     width = HEAD_OUTPUTS[shipped.head]  # z_last holds the head's last raw output
-    assert side["inputs"][3]["shape"] == [1, width] and side["inputs"][4]["shape"] == [1, 3, 48, 48]
+    assert side["inputs"][3]["shape"] == [1, width] and side["inputs"][4]["shape"] == [1, 3, 32, 32]
     assert all("zeros" in i["initial"] for i in side["inputs"][1:])
     head_output = "a" if shipped.head == "gamma" else "z"
     assert [o["name"] for o in side["outputs"]] == [head_output, *(f"{n}_out" for n in state)]
@@ -144,12 +146,14 @@ def test_sidecar_says_what_a_host_needs(shipped_onnx: Path) -> None:
     session = cpu_session(out)
     assert [i.name for i in session.get_inputs()] == ["frame", *state]
     assert [tuple(i.shape) for i in session.get_inputs()] == [
-        (1, 3, 48, 48),
-        (1, 32, 48, 48),
-        (1, 32, 48, 48),
+        (1, 3, 32, 32),
+        (1, 32, 32, 32),
+        (1, 32, 32, 32),
         (1, width),
-        (1, 3, 48, 48),
+        (1, 3, 32, 32),
     ]
+    # the shipped model's tone match, as numbers a host reads (its rule: examples/cpp_host, held to ours there)
+    assert side["tone_match"]["weight"] == DEFAULT_TONE_MATCH and side["tone_match"]["sample_pixels"] == SAMPLE_PIXELS
 
 
 class GainGammaNet(GammaNet):
