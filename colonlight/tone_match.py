@@ -112,12 +112,13 @@ def matching_table(source: np.ndarray, reference: np.ndarray) -> np.ndarray:
     identity."""
     levels_s, q_s = _quantiles(source)
     levels_r, q_r = _quantiles(reference)
-    mapped = np.interp(q_s, q_r, levels_r) if len(levels_r) > 1 else np.full_like(q_s, levels_r[0])
+    mapped = np.interp(q_s, q_r, levels_r)
     table = np.interp(_LEVELS, levels_s, mapped)
     below, above = levels_s[0] > _LEVELS, levels_s[-1] < _LEVELS
     table[below] = mapped[0] - (levels_s[0] - _LEVELS[below])
     table[above] = mapped[-1] + (_LEVELS[above] - levels_s[-1])
-    return np.clip(table, 0.0, 255.0)
+    clipped: np.ndarray = np.clip(table, 0.0, 255.0)
+    return clipped
 
 
 class ToneMatcher:
