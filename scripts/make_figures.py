@@ -38,6 +38,9 @@ def main() -> None:
     results = list(iter_enhanced(iter(images), method))
     enhanced = [r.frame for r in results]
     gammas = [r.gamma for r in results]
+    # with tone matching on, the table applied is the network's curve pulled toward the last frame's tones
+    applied = [r.info.get("applied_gamma", r.gamma) for r in results]
+    matched = any("applied_gamma" in r.info for r in results)
 
     picks = np.linspace(4, len(images) - 1, 6).astype(int)
     rows = [
@@ -59,6 +62,8 @@ def main() -> None:
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
     gamma_label = "gamma applied by colonlight" if head == "gamma" else f"colonlight's gamma ({head} head: summary)"
     ax1.plot(t, gammas, color="tab:blue", label=gamma_label)
+    if matched:
+        ax1.plot(t, applied, color="tab:purple", lw=1, label="after tone matching (summary of the table applied)")
     contrast = [f.lighting.get("contrast", 1.0) for f in frames]
     ax1.plot(t, contrast, color="tab:orange", ls="--", label="recorded contrast exponent")
     ax1.set_ylabel("exponent")
