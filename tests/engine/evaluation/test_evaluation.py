@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
+from colonlight.checkpoint import load_weights
 from colonlight.evaluation.clips import (
     EvalClip,
     benchmark_config,
@@ -32,7 +33,6 @@ from colonlight.evaluation.consistency import (
 from colonlight.evaluation.report import write_report
 from colonlight.evaluation.runner import EvalMethod, evaluate_clip, evaluate_clips, method_list, summarize
 from colonlight.methods import available_methods
-from colonlight.methods.rnn import DEFAULT_MODEL_SIZE
 from colonlight.metrics import content_masks
 
 from ...conftest import AUTHORS_CKPT
@@ -499,7 +499,7 @@ def test_report_files_are_complete_and_self_contained(all_methods_run: tuple) ->
     assert prov["command"] == "colonlight evaluate --synthetic 1" and prov["colonlight_version"]
     assert {"pycolmap", "evo", "scikit-image"} <= set(prov["versions"])
     rnn = next(m for m in record["methods"] if m["label"] == "rnn (ours)")
-    assert len(rnn["model"]["sha256"]) == 64 and rnn["parameters"]["model_size"] == DEFAULT_MODEL_SIZE
+    assert len(rnn["model"]["sha256"]) == 64 and rnn["parameters"]["model_size"] == load_weights().input_size
     seeds = _shipped_seed_frames()
     assert record["clips"][0]["results"]["rnn (ours)"]["gammas"][:seeds] == [1.0] * seeds
     md = paths["markdown"].read_text()

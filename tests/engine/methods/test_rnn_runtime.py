@@ -50,7 +50,8 @@ def test_enhance_on_onnxruntime_gives_torchs_gammas_and_caches_the_graph(
     gammas = {r: np.array([f["gamma"] for f in rec["frames"]]) for r, rec in records.items()}
     assert np.max(np.abs(gammas["onnxruntime"] - gammas["torch"])) <= 1e-4
     cached = list(cache_dir().glob("*.onnx"))
-    assert len(cached) == 1 and cached[0].name.startswith(records["torch"]["model"]["sha256"][:16] + "-48px-")
+    size = records["torch"]["parameters"]["model_size"]  # the card's (32 for the shipped model)
+    assert len(cached) == 1 and cached[0].name.startswith(f"{records['torch']['model']['sha256'][:16]}-{size}px-")
     # A second build reads the cached graph (no export); a damaged cache is exported again and replaced.
     frame = np.full((120, 160, 3), 90, np.uint8)
     expected = RecurrentGammaMethod(device="cpu").stream().predict_a(frame)

@@ -204,7 +204,9 @@ def test_corrections_match_the_clip_without_its_border(scene: np.ndarray) -> Non
     before it: octagon max 0.9-3.4 levels (full on the bordered clip: 2.4-5.9); disc mean 1.8-6.6 (full: 68-102).
     On seed 3 the hidden corners carry what both models key on: there the octagon moves the table by up to 14
     levels with the area as without it."""
-    method = create_method("rnn")
+    # at 48 px, the size these numbers were measured at (the shipped card runs 32 px since session 22; there the
+    # octagon moves the table as much with the area as without it, 3.6 and 3.5 levels, both within 5)
+    method = create_method("rnn", model_size=48)
     assert isinstance(method, RecurrentGammaMethod)
     plain = applied_tables(method, run_stream(method.stream(), scene))
     for spec, stat, tol, apart in (
