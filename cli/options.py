@@ -60,6 +60,7 @@ Weights = method_flag("weights")
 ModelSize = method_flag("model_size")
 Gamma = method_flag("gamma")
 ToneMatch = method_flag("tone_match")
+SceneCut = method_flag("scene_cut")
 Device = method_flag("device")
 Runtime = method_flag("runtime")
 

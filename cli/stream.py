@@ -113,6 +113,7 @@ def stream(
     weights: str | None = options.Weights,
     model_size: str | None = options.ModelSize,
     tone_match: str | None = options.ToneMatch,
+    scene_cut: str | None = options.SceneCut,
     gamma: str | None = options.Gamma,
     device: str | None = options.Device,
     runtime: str | None = options.Runtime,

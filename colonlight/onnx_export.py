@@ -25,6 +25,8 @@ from .checkpoint import LoadedWeights
 from .correction import CURVE_KNOTS, CURVE_SLOPE_MAX, LOG_GAIN_SPAN, LOG_GAMMA_SPAN, SLOPE_OFFSET
 from .methods.rnn import CURVE_SUMMARY_AT, GAIN_MAX, GAIN_MIN, GAMMA_MAX, GAMMA_MIN, PRESAMPLE, SEED_FRAMES
 from .onnx_step import ExportError, StepSignature, compare_with_torch, cpu_session, export_model_bytes
+from .scene_cut import default_threshold
+from .scene_cut import host_rule as scene_cut_rule
 from .tone_match import default_weight, host_rule
 
 SIDECAR_FORMAT = "colonlight-onnx-step"
@@ -124,6 +126,8 @@ def sidecar_record(
         "correction": correction_parameters(head) if sig.head_names in (("a",), ("z",)) else None,
         # colonlight's own models pull each output frame's tones toward the last one's (colonlight.tone_match)
         "tone_match": host_rule(default_weight(head)),
+        # and start afresh at a cut to another scene (colonlight.scene_cut), before the network's step
+        "scene_cut": scene_cut_rule(default_threshold(head)),
         # what the network reads of the frame: the graph's input is RGB either way (an rgb-log network computes
         # its log channels inside the graph), so a host needs this only to know which model it runs
         "network_inputs": getattr(weights.net, "inputs", "rgb"),

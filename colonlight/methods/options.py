@@ -20,6 +20,7 @@ from typing import Any, Literal
 
 from ..errors import MethodOptionError
 from ..limits import MAX_GAMMA, MAX_MODEL_SIZE, MIN_MODEL_SIZE
+from ..scene_cut import DEFAULT_SCENE_CUT
 from ..tone_match import DEFAULT_TONE_MATCH
 
 Kind = Literal["number", "size", "choice", "path", "text"]
@@ -197,6 +198,17 @@ OPTIONS: tuple[MethodOption, ...] = (
         "frames show nearly the same surface, so this cancels most of what one frame's estimate gets wrong. "
         f"Default: {DEFAULT_TONE_MATCH:g} for colonlight's own models, 0 for the paper's one-gamma models (the "
         "authors' checkpoint stays exact to its release).",
+        minimum=0.0,
+        maximum=1.0,
+    ),
+    MethodOption(
+        "scene_cut",
+        "number",
+        ("rnn",),
+        "Rank correlation of consecutive frames' thumbnails below which a frame starts the stream afresh, 0 "
+        "(never) .. 1: a cut to another scene is a new clip, not a lighting change to undo (lighting changes "
+        f"keep the pixels' brightness order). Default: {DEFAULT_SCENE_CUT:g} for colonlight's own models, 0 for the "
+        "paper's one-gamma models (the authors' checkpoint stays exact to its release).",
         minimum=0.0,
         maximum=1.0,
     ),

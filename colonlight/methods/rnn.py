@@ -26,6 +26,7 @@ from ..device import resolve_device
 from ..errors import OptionError
 from ..limits import DEFAULT_MODEL_SIZE, MAX_MODEL_SIZE, MIN_MODEL_SIZE
 from ..model import State
+from ..scene_cut import SceneCutDetector, default_threshold
 from ..tone_match import ToneMatcher, default_weight
 from .base import FrameResult, Method, MethodStream, check_frame
 from .rnn_onnx import make_step
@@ -160,6 +161,7 @@ class RecurrentGammaStream(MethodStream):
         self._state: State | None = None
         self._index = 0
         self._matcher = ToneMatcher(method.tone_match) if method.tone_match > 0 else None
+        self._cuts = SceneCutDetector(method.scene_cut) if method.scene_cut > 0 else None
 
     def predict(self, frame: np.ndarray) -> list[float]:
         """Advance the recurrent state by one frame and return the head's raw outputs (``[a]`` for the
@@ -174,13 +176,25 @@ class RecurrentGammaStream(MethodStream):
         """Advance the recurrent state by one frame and return the ``gamma`` head's raw ``a``."""
         return self.predict(frame)[0]
 
+    def restart(self) -> None:
+        """Forget the clip so far (a scene cut): the next frame is treated as a clip's first."""
+        self._state = None
+        self._index = 0
+        if self._matcher is not None:
+            self._matcher = ToneMatcher(self._matcher.weight)
+
     def push(self, frame: np.ndarray) -> list[FrameResult]:
         check_frame(frame)
+        cut = self._cuts is not None and self._cuts.is_cut(frame)
+        if cut:
+            self.restart()
         raw = self.predict(frame)
         index, self._index = self._index, self._index + 1
         head = self._method.weights.head
         recorded = [v if math.isfinite(v) else None for v in raw]  # JSON has no NaN: a failed output reads null
         info: dict[str, Any] = {"z": recorded} if head != "gamma" else {"a": recorded[0]}
+        if cut:
+            info["scene_cut"] = True
         if index < self._method.seeds:
             if self._matcher is not None:
                 self._matcher.keep(frame, IDENTITY_LUT)  # written unchanged: the next frame matches to it
@@ -212,6 +226,9 @@ class RecurrentGammaMethod(Method):
         tone_match: how much of each frame's tones to pull toward the previous output's (``tone_match``), 0..1;
             ``None``: ``DEFAULT_TONE_MATCH`` for colonlight's own heads, 0 for the paper's one-gamma head (the
             release has no such step, and the authors' checkpoint must stay exact to it).
+        scene_cut: the rank correlation of consecutive frames' thumbnails below which a frame starts the stream
+            afresh (``scene_cut``), 0..1, 0 = never; ``None``: ``DEFAULT_SCENE_CUT`` for colonlight's own heads,
+            0 for the paper's one-gamma head.
     """
 
     name = "rnn"
@@ -224,6 +241,7 @@ class RecurrentGammaMethod(Method):
         seeds: int | None = None,
         runtime: str = "torch",
         tone_match: float | None = None,
+        scene_cut: float | None = None,
     ) -> None:
         self.device = resolve_device(device)
         if isinstance(weights, LoadedWeights):  # a copy of the caller's net: moving and re-laying it is ours
@@ -244,6 +262,11 @@ class RecurrentGammaMethod(Method):
         if not 0.0 <= tone_match <= 1.0:
             raise OptionError(f"tone_match must be within 0..1, got {tone_match}")
         self.tone_match = float(tone_match)
+        if scene_cut is None:
+            scene_cut = default_threshold(self.weights.head)
+        if not 0.0 <= scene_cut <= 1.0:
+            raise OptionError(f"scene_cut must be within 0..1, got {scene_cut}")
+        self.scene_cut = float(scene_cut)
         self.step = make_step(self.weights, self.model_size, self.device, runtime)  # net.step or ONNX Runtime's
 
     def stream(self) -> RecurrentGammaStream:
@@ -257,6 +280,7 @@ class RecurrentGammaMethod(Method):
             "device": str(self.device),
             **({"runtime": self.runtime} if self.runtime != "torch" else {}),
             **({"tone_match": self.tone_match} if self.tone_match > 0 else {}),
+            **({"scene_cut": self.scene_cut} if self.scene_cut > 0 else {}),
         }
         if self.weights.head != "gamma":  # older outputs' records stay as they were
             params["head"] = self.weights.head

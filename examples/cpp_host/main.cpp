@@ -6,9 +6,10 @@
 // Reads raw RGB24 frames of WIDTH x HEIGHT from standard input, carries the recurrent state from frame to frame
 // (h, c in -> h_out, c_out out; zeros at the start), turns the step's output into the frame's correction by the
 // rule the sidecar gives for its head (gamma, gain-gamma or curve), pulls its tones toward the last output
-// frame's where the sidecar's tone_match says so, applies it to the full-resolution frame through a 256-entry
-// table, and prints one JSON line per frame on standard output. `--out FILE` writes the
-// enhanced frames (raw RGB24) there. Errors: one line on standard error, exit 1 (2 for a usage error).
+// frame's where the sidecar's tone_match says so, starts afresh at a cut to another scene where its scene_cut
+// does, applies the correction to the full-resolution frame through a 256-entry table, and prints one JSON line
+// per frame on standard output. `--out FILE` writes the enhanced frames (raw RGB24) there. Errors: one line on
+// standard error, exit 1 (2 for a usage error).
 #include <onnxruntime_cxx_api.h>
 
 #include <algorithm>
@@ -281,6 +282,80 @@ class ToneMatcher {
     }
 };
 
+// colonlight.scene_cut (the sidecar's "scene_cut"): a frame whose grey thumbnail does not keep the last frame's
+// order of pixel brightness (rank correlation below the threshold; lighting changes keep it) starts a new clip.
+// Off when the threshold is 0 (the paper's one-gamma head) or the sidecar predates it.
+class SceneCuts {
+   public:
+    explicit SceneCuts(const json& side) {
+        if (!side.contains("scene_cut")) return;
+        const json& t = side.at("scene_cut");
+        threshold_ = t.at("threshold").get<double>();
+        side_ = t.at("thumb_side").get<int>();
+        sample_pixels_ = side.at("tone_match").at("sample_pixels").get<double>();
+    }
+
+    bool on() const { return threshold_ > 0.0; }
+
+    // Whether rgb starts a new scene after the last frame seen (never the first); remembers it.
+    bool is_cut(const cv::Mat& rgb) {
+        std::vector<double> ranks = centred_ranks(thumbnail(rgb));
+        const bool cut = has_previous_ && correlation(previous_, ranks) < threshold_;
+        previous_ = std::move(ranks);
+        has_previous_ = true;
+        return cut;
+    }
+
+   private:
+    double threshold_ = 0.0, sample_pixels_ = 1.0;
+    int side_ = 1;
+    bool has_previous_ = false;
+    std::vector<double> previous_;
+
+    // The tone match's subsample, area-averaged to side x side, in grey.
+    cv::Mat thumbnail(const cv::Mat& rgb) const {
+        int step = std::max(1, static_cast<int>(std::ceil(std::sqrt(static_cast<double>(rgb.rows) * rgb.cols /
+                                                                        sample_pixels_))));
+        cv::Mat sample = rgb, small, grey;
+        if (step > 1)
+            cv::resize(rgb, sample, cv::Size((rgb.cols + step - 1) / step, (rgb.rows + step - 1) / step), 0, 0,
+                       cv::INTER_NEAREST);
+        cv::resize(sample, small, cv::Size(side_, side_), 0, 0, cv::INTER_AREA);
+        cv::cvtColor(small, grey, cv::COLOR_RGB2GRAY);
+        return grey;
+    }
+
+    // Each pixel's rank (ties: their mean rank) less the mean rank: multiples of 1/2, so every sum is exact.
+    static std::vector<double> centred_ranks(const cv::Mat& grey) {
+        std::array<double, 256> counts{}, rank{};
+        for (int y = 0; y < grey.rows; ++y)
+            for (int x = 0; x < grey.cols; ++x) counts[grey.at<std::uint8_t>(y, x)] += 1.0;
+        double darker = 0.0;
+        for (int v = 0; v < 256; ++v) {
+            rank[v] = darker + (counts[v] + 1.0) / 2.0;
+            darker += counts[v];
+        }
+        const double centre = (static_cast<double>(grey.total()) + 1.0) / 2.0;
+        std::vector<double> out;
+        out.reserve(grey.total());
+        for (int y = 0; y < grey.rows; ++y)
+            for (int x = 0; x < grey.cols; ++x) out.push_back(rank[grey.at<std::uint8_t>(y, x)] - centre);
+        return out;
+    }
+
+    // Spearman's correlation from centred ranks; 0 when either frame is flat.
+    static double correlation(const std::vector<double>& r, const std::vector<double>& s) {
+        double rs = 0.0, rr = 0.0, ss = 0.0;
+        for (std::size_t i = 0; i < r.size(); ++i) {
+            rs += r[i] * s[i];
+            rr += r[i] * r[i];
+            ss += s[i] * s[i];
+        }
+        const double denominator = rr * ss;
+        return denominator > 0.0 ? rs / std::sqrt(denominator) : 0.0;
+    }
+};
+
 // The copy of the frame the network sees (the sidecar's "resize"): a frame whose shorter side is over
 // presample * size is first resampled bilinearly to that square, then area-averaged to size x size; a frame of
 // that size already is used as is.
@@ -320,6 +395,7 @@ int run(const std::string& model, int width, int height, const std::string& out_
     const long seeds = side.at("seed_frames").at("count").get<long>();
     const Rule rule = Rule::from_sidecar(side);
     ToneMatcher matcher(side);
+    SceneCuts cuts(side);
 
     // Inputs: the frame, then the state tensors (zeros); outputs: the head's, then each state's "<name>_out".
     std::vector<std::string> in_names, out_names;
@@ -354,13 +430,20 @@ int run(const std::string& model, int width, int height, const std::string& out_
     }
     const std::size_t frame_bytes = static_cast<std::size_t>(width) * height * 3;
     std::vector<std::uint8_t> buffer(frame_bytes);
-    for (long index = 0;; ++index) {
+    long since_start = 0;  // frames since the clip's start or its last scene cut
+    for (long index = 0;; ++index, ++since_start) {
         std::cin.read(reinterpret_cast<char*>(buffer.data()), static_cast<std::streamsize>(frame_bytes));
         if (std::cin.gcount() == 0) break;
         if (static_cast<std::size_t>(std::cin.gcount()) != frame_bytes)
             throw Failure("standard input ended inside frame " + std::to_string(index) + " (not " +
                           std::to_string(width) + "x" + std::to_string(height) + " RGB24?)");
         cv::Mat rgb(height, width, CV_8UC3, buffer.data());
+        const bool cut = cuts.on() && cuts.is_cut(rgb);
+        if (cut) {  // a new clip: the state, the frame count and the tone match's memory start again
+            for (std::size_t s = 1; s < in_data.size(); ++s) std::fill(in_data[s].begin(), in_data[s].end(), 0.0f);
+            since_start = 0;
+            matcher = ToneMatcher(side);
+        }
         cv::Mat x = network_input(rgb, size, presample);
         std::vector<float>& frame = in_data[0];  // NCHW, channels R G B, value / 255
         for (int y = 0; y < size; ++y)
@@ -384,7 +467,7 @@ int run(const std::string& model, int width, int height, const std::string& out_
             std::copy_n(p, in_data[1 + s].size(), in_data[1 + s].begin());
         }
 
-        const bool seed = index < seeds;  // seeds build the state and pass through unchanged
+        const bool seed = since_start < seeds;  // seeds build the state and pass through unchanged
         Correction c = seed ? Correction{} : rule.correct(head);
         if (matcher.on()) {
             Lut identity{};
@@ -398,7 +481,8 @@ int run(const std::string& model, int width, int height, const std::string& out_
         }
         std::string line = "{\"index\": " + std::to_string(index) + ", \"head\": [";
         for (std::size_t i = 0; i < head.size(); ++i) line += (i ? ", " : "") + number(head[i]);
-        line += "], \"seed\": " + std::string(seed ? "true" : "false") + ", \"gamma\": " + number(c.gamma);
+        line += "], \"seed\": " + std::string(seed ? "true" : "false") + ", \"scene_cut\": " +
+                std::string(cut ? "true" : "false") + ", \"gamma\": " + number(c.gamma);
         if (rule.head == "gain-gamma") line += ", \"gain\": " + number(c.gain);
         if (rule.head == "curve" && !c.curve.empty()) {
             line += ", \"curve\": [";

@@ -171,3 +171,30 @@ def test_the_cpp_host_fails_in_one_line(host: Path, tmp_path: Path) -> None:
     old = subprocess.run([str(host), str(onnx), "8", "8"], capture_output=True, text=True, input="")
     assert old.returncode == 1 and old.stderr.count("\n") == 1
     assert "old.onnx.json" in old.stderr and "presample" in old.stderr and "re-export" in old.stderr
+
+
+def test_the_cpp_host_starts_afresh_at_a_scene_cut(host: Path, clip: list[np.ndarray], tmp_path: Path) -> None:
+    """A clip cut to another scene: the host finds the cut where colonlight does, and from there on writes what
+    it writes for the second scene alone (its state, frame count and tone match restarted)."""
+    from colonlight.synth import SynthConfig, generate_clip
+
+    cfg = SynthConfig.sample(
+        np.random.default_rng(13), split="heldout", width=WIDTH, height=HEIGHT, n_frames=12, steady=True
+    )
+    second = [f.image for f in generate_clip(cfg, seed=13)]
+    weights = load_weights()
+    method = RecurrentGammaMethod(weights=weights, device="cpu")
+    stream = method.stream()
+    ours = [r for f in clip + second for r in stream.push(f)]
+    cuts = [i for i, r in enumerate(ours) if r.info.get("scene_cut")]
+    assert cuts == [FRAMES], f"colonlight must find the cut at frame {FRAMES} for this test to mean anything"
+    onnx = tmp_path / "model.onnx"
+    export_onnx(weights, onnx, size=method.model_size)
+    joined = _run_host(host, onnx, clip + second, tmp_path / "joined.rgb")
+    alone = _run_host(host, onnx, second, tmp_path / "alone.rgb")
+    assert [i for i, r in enumerate(joined) if r["scene_cut"]] == cuts and not any(r["scene_cut"] for r in alone)
+    assert [r["head"] for r in joined[FRAMES:]] == [r["head"] for r in alone]
+    frames = np.fromfile(tmp_path / "joined.rgb", np.uint8).reshape(-1, HEIGHT, WIDTH, 3)
+    assert np.array_equal(frames[FRAMES:], np.fromfile(tmp_path / "alone.rgb", np.uint8).reshape(frames[FRAMES:].shape))
+    for out, result in zip(frames[FRAMES:], ours[FRAMES:], strict=True):  # and colonlight's, to a .5 rounding
+        assert np.max(np.abs(out.astype(int) - result.frame.astype(int))) <= 1
