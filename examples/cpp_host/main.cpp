@@ -161,6 +161,18 @@ struct Rule {
     }
 };
 
+// The tone match's subsample (tone_match.subsample): every step-th pixel each way, nearest neighbour, with the
+// least step that leaves at most sample_pixels; the frame itself when it is that small.
+cv::Mat subsample(const cv::Mat& rgb, double sample_pixels) {
+    int step = std::max(
+        1, static_cast<int>(std::ceil(std::sqrt(static_cast<double>(rgb.rows) * rgb.cols / sample_pixels))));
+    if (step == 1) return rgb;
+    cv::Mat sample;
+    cv::resize(rgb, sample, cv::Size((rgb.cols + step - 1) / step, (rgb.rows + step - 1) / step), 0, 0,
+               cv::INTER_NEAREST);
+    return sample;
+}
+
 // colonlight.tone_match (the sidecar's "tone_match"): each output frame's tones pulled toward the last output
 // frame's, over a subsample of the pixels not specular in either input frame. Off when its weight is 0 (the
 // paper's one-gamma head) or the sidecar predates it.
@@ -179,7 +191,7 @@ class ToneMatcher {
 
     // The table to apply to rgb: the head's table, then weight of the match of its result to the last output.
     Lut table(const cv::Mat& rgb, const Lut& head) {
-        cv::Mat sample = subsample(rgb), ok = usable(sample);
+        cv::Mat sample = subsample(rgb, sample_pixels_), ok = usable(sample);
         Lut out = head;
         if (has_previous_ && previous_.size() == sample.size()) {
             cv::Mat shared;
@@ -203,7 +215,7 @@ class ToneMatcher {
 
     // A frame written through table without matching (a seed frame): the next frame matches to it.
     void keep(const cv::Mat& rgb, const Lut& table) {
-        cv::Mat sample = subsample(rgb);
+        cv::Mat sample = subsample(rgb, sample_pixels_);
         remember(sample, usable(sample), table);
     }
 
@@ -219,16 +231,6 @@ class ToneMatcher {
         previous_ok_ = ok;
         previous_table_ = table;
         has_previous_ = true;
-    }
-
-    cv::Mat subsample(const cv::Mat& rgb) const {
-        int step = std::max(1, static_cast<int>(std::ceil(std::sqrt(static_cast<double>(rgb.rows) * rgb.cols /
-                                                                        sample_pixels_))));
-        if (step == 1) return rgb;
-        cv::Mat sample;
-        cv::resize(rgb, sample, cv::Size((rgb.cols + step - 1) / step, (rgb.rows + step - 1) / step), 0, 0,
-                   cv::INTER_NEAREST);
-        return sample;
     }
 
     cv::Mat usable(const cv::Mat& sample) const {
@@ -314,13 +316,8 @@ class SceneCuts {
 
     // The tone match's subsample, area-averaged to side x side, in grey.
     cv::Mat thumbnail(const cv::Mat& rgb) const {
-        int step = std::max(1, static_cast<int>(std::ceil(std::sqrt(static_cast<double>(rgb.rows) * rgb.cols /
-                                                                        sample_pixels_))));
-        cv::Mat sample = rgb, small, grey;
-        if (step > 1)
-            cv::resize(rgb, sample, cv::Size((rgb.cols + step - 1) / step, (rgb.rows + step - 1) / step), 0, 0,
-                       cv::INTER_NEAREST);
-        cv::resize(sample, small, cv::Size(side_, side_), 0, 0, cv::INTER_AREA);
+        cv::Mat small, grey;
+        cv::resize(subsample(rgb, sample_pixels_), small, cv::Size(side_, side_), 0, 0, cv::INTER_AREA);
         cv::cvtColor(small, grey, cv::COLOR_RGB2GRAY);
         return grey;
     }
