@@ -50,8 +50,8 @@ def host_rule(threshold: float) -> dict[str, object]:
         "cv::resize(sample, (thumb_side, thumb_side), INTER_AREA), RGB2GRAY), where sample is the tone match's "
         "subsample of the frame; rank of each pixel = (number of thumb pixels darker) + (number equal + 1) / 2; "
         "with r and s the two frames' ranks less their means, corr = sum(r * s) / sqrt(sum(r * r) * sum(s * s)), "
-        "0 when the denominator is 0. From the second frame on, corr below threshold (or a frame of another size "
-        "than the last) makes this frame a new clip: the recurrent state, the tone match's memory and the frame count "
+        "0 when the denominator is 0. From the second frame on, corr below threshold makes this frame a new "
+        "clip: the recurrent state, the tone match's memory and the frame count "
         "start again, as at the first frame. The thumbnail is kept for the next frame.",
     }
 
@@ -94,15 +94,15 @@ class SceneCutDetector:
         if not 0.0 <= threshold <= 1.0:
             raise ValueError(f"scene cut threshold must be within 0..1, got {threshold}")
         self.threshold = threshold
-        self._previous: tuple[tuple[int, ...], np.ndarray] | None = None  # (frame shape, thumbnail)
+        self._previous: np.ndarray | None = None
 
     def is_cut(self, frame: np.ndarray) -> bool:
-        """Whether ``frame`` starts a new scene after the last one seen (never the first; always a frame of
-        another size, which comes from another source); remembers it."""
+        """Whether ``frame`` starts a new scene after the last one seen (never the first); remembers it.
+
+        A frame of another size is judged by its thumbnail like any other: ``--content auto`` can move the
+        content box within one scene, and its thumbnail still follows the last one."""
         thumb = thumbnail(frame)
-        previous, self._previous = self._previous, (frame.shape, thumb)
+        previous, self._previous = self._previous, thumb
         if previous is None or self.threshold <= 0:
             return False
-        if previous[0] != frame.shape:
-            return True
-        return rank_correlation(previous[1], thumb) < self.threshold
+        return rank_correlation(previous, thumb) < self.threshold
