@@ -15,7 +15,7 @@ never fell below 0.28; between frames of different clips its median was 0.03, bu
 a margin against false cuts, which cost more than missed ones, and catches about two cuts in three.
 
 Ranks come from integer counts and every sum is of half-integers below 2**53, so a host computes the same
-correlation exactly from the same thumbnail. Memory: one thumbnail.
+correlation exactly from the same thumbnail. Memory: one thumbnail's ranks.
 """
 
 from __future__ import annotations
@@ -72,19 +72,27 @@ def mean_ranks(thumb: np.ndarray) -> np.ndarray:
     return ranks
 
 
-def rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
-    """Spearman's correlation of two thumbnails of one shape; 0 when either is flat (one level throughout).
+def centred_ranks(thumb: np.ndarray) -> np.ndarray:
+    """``mean_ranks`` less their mean. The ranks sum to n (n + 1) / 2 whatever the ties, so the mean is
+    (n + 1) / 2 and the centred ranks stay multiples of 1/2: every sum ``correlation`` takes is exact in float64."""
+    centred: np.ndarray = mean_ranks(thumb) - (thumb.size + 1) / 2.0
+    return centred
 
-    The ranks sum to n (n + 1) / 2 whatever the ties, so centring subtracts the same (n + 1) / 2 from each: the
-    centred ranks stay multiples of 1/2 and every sum below is exact in float64."""
-    centre = (a.size + 1) / 2.0
-    r, s = mean_ranks(a) - centre, mean_ranks(b) - centre
+
+def correlation(r: np.ndarray, s: np.ndarray) -> float:
+    """Pearson's correlation of two centred rank vectors of one length (Spearman's of their thumbnails); 0 when
+    either is flat (one level throughout)."""
     denominator = float(r @ r) * float(s @ s)
     return float(r @ s) / math.sqrt(denominator) if denominator > 0 else 0.0
 
 
+def rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
+    """Spearman's correlation of two thumbnails of one shape; 0 when either is flat."""
+    return correlation(centred_ranks(a), centred_ranks(b))
+
+
 class SceneCutDetector:
-    """Per-clip state: the last frame's thumbnail.
+    """Per-clip state: the last frame's thumbnail, as its centred ranks (each frame's are computed once).
 
     Args:
         threshold: rank correlation below which a frame starts a new scene, 0 .. 1 (0 never does).
@@ -101,8 +109,8 @@ class SceneCutDetector:
 
         A frame of another size is judged by its thumbnail like any other: ``--content auto`` can move the
         content box within one scene, and its thumbnail still follows the last one."""
-        thumb = thumbnail(frame)
-        previous, self._previous = self._previous, thumb
+        ranks = centred_ranks(thumbnail(frame))
+        previous, self._previous = self._previous, ranks
         if previous is None or self.threshold <= 0:
             return False
-        return rank_correlation(previous, thumb) < self.threshold
+        return correlation(previous, ranks) < self.threshold

@@ -83,7 +83,7 @@ def test_a_frame_of_another_size_is_judged_by_its_content(
     assert detector.is_cut(np.full((HEIGHT // 2, WIDTH // 2, 3), 90, np.uint8))
 
 
-def test_the_stream_starts_afresh_at_a_cut(tmp_path: Path, scenes: tuple[list[np.ndarray], list[np.ndarray]]) -> None:
+def test_the_stream_starts_afresh_at_a_cut(scenes: tuple[list[np.ndarray], list[np.ndarray]]) -> None:
     first, second = scenes
     ours = RecurrentGammaMethod(device="cpu")  # the shipped model: cuts on by default
     assert ours.scene_cut == DEFAULT_SCENE_CUT and ours.parameters()["scene_cut"] == DEFAULT_SCENE_CUT
