@@ -15,6 +15,7 @@ up to the gap cap (:func:`colonlight.limits.max_gap_frames_setting`).
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 from collections import deque
@@ -140,6 +141,10 @@ def _cause(exc: BaseException, opening: bool = False) -> str:
         return "is a directory, not a video file"
     if isinstance(exc, av.error.InvalidDataError):
         return "not a video: the content is not a recognised video format" if opening else "invalid data"
+    if opening and isinstance(exc, av.error.EOFError):  # a container header, then nothing (or a cut)
+        return "no video frames: the file ends before its first frame (an empty or unfinished recording?)"
+    if opening and isinstance(exc, av.error.FFmpegError) and exc.errno == errno.EIO:  # FFmpeg's word for a cut
+        return "its container cannot be read (Input/output error): truncated or corrupt?"
     return str(getattr(exc, "strerror", None) or exc or type(exc).__name__)
 
 

@@ -226,7 +226,7 @@ def discover(
 
     ``pattern`` (a glob) keeps clips whose relative path or file name matches. ``exclude``: folders never
     searched (the batch's output folder). Two clips that would share an output folder are told apart by their
-    suffix (``clip-mp4``, ``clip-avi``).
+    suffix (``clip-mp4``, ``clip-avi``), then by a number (``clip-mp4-2``): see :func:`_unique_names`.
     """
     out = Discovery()
     excluded = frozenset(i for i in (_stat_identity(Path(p)) for p in exclude) if i is not None)
@@ -249,20 +249,38 @@ def discover(
             or fnmatch.fnmatch(rel.as_posix(), pattern)
             or fnmatch.fnmatch((rel.parent / src.name).as_posix(), pattern)
         ]
-    counts: dict[str, int] = {}
-    for _, rel, _ in found:
-        counts[rel.as_posix()] = counts.get(rel.as_posix(), 0) + 1
-    seen: set[tuple[str, str]] = set()
-    for src, rel, problem in found:
-        name = rel.as_posix()
-        if counts[name] > 1 and (src.suffix or synthetic_folder_of(src)):
-            name = f"{name}-{'synth' if synthetic_folder_of(src) else src.suffix.lstrip('.').lower()}"
-        key = (os.path.realpath(src), name)  # realpath, unlike Path.resolve, never raises on a link loop
-        if key in seen:
-            continue
-        seen.add(key)
+    for src, name, problem in _unique_names(found):
         out.jobs.append(ClipJob(source=src, name=name, out_dir=Path(out_root) / name, problem=problem))
     return out
+
+
+def _unique_names(found: Sequence[tuple[Path, Path, str | None]]) -> Iterator[tuple[Path, str, str | None]]:
+    """Each clip once, with an output name no other clip has: two clips writing one folder would skip or
+    overwrite each other. A file found twice (named twice, or also inside a given folder) is one clip under its
+    own name; names shared by different files get the suffix (``p7-mp4``, ``p7-avi``), then, where that is
+    not enough (``a/p7.mp4`` and ``b/p7.mp4``, ``p7.mp4`` and ``p7.MP4``, ``p7.mp4`` beside ``p7-mp4.mov``),
+    a number (``p7-mp4-2``); a name that needs neither is never taken by another clip."""
+    # realpath, unlike Path.resolve, never raises on a link loop
+    clips = [(src, rel.as_posix(), problem, os.path.realpath(src)) for src, rel, problem in found]
+    sources: dict[str, set[str]] = {}
+    for _, rel, _, real in clips:
+        sources.setdefault(rel, set()).add(real)
+    taken = {rel for rel, reals in sources.items() if len(reals) == 1}  # kept as they are
+    seen: set[tuple[str, str]] = set()
+    for src, rel, problem, real in clips:
+        if (real, rel) in seen:
+            continue
+        seen.add((real, rel))
+        name = rel
+        if len(sources[rel]) > 1:
+            if src.suffix or synthetic_folder_of(src):
+                name = f"{rel}-{'synth' if synthetic_folder_of(src) else src.suffix.lstrip('.').lower()}"
+            base, n = name, 1
+            while name in taken:
+                n += 1
+                name = f"{base}-{n}"
+            taken.add(name)
+        yield src, name, problem
 
 
 def discover_clips(inputs: Sequence[Path], out_root: Path, pattern: str | None = None) -> list[ClipJob]:

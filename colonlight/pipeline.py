@@ -386,6 +386,11 @@ def _enhance_clip(
             break
     if len(head) < MIN_FRAMES:
         stop.set()
+        if fps_out and report.source_frames >= MIN_FRAMES:  # enough frames, too short a time for the rate
+            raise InputError(
+                f"{source}: its {report.source_frames} frames span too short a time for {fps_out:g} fps: only "
+                f"{len(head)} frame(s) at that rate, at least {MIN_FRAMES} are needed (fps 0 keeps every frame)"
+            )
         raise InputError(f"{source}: only {len(head)} frame(s); at least {MIN_FRAMES} are needed")
     first_size = head[0].image.shape[:2]
     video_fps = fps_out or _source_rate(head)

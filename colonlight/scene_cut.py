@@ -14,6 +14,12 @@ never fell below 0.28; between frames of different clips its median was 0.03, bu
 (a dark lumen in a pink tube), so a third of those pairs correlate above ``DEFAULT_SCENE_CUT``: the threshold keeps
 a margin against false cuts, which cost more than missed ones, and catches about two cuts in three.
 
+A frame whose thumbnail is one level throughout (a black dropout, a white flash, a blank screen) has no order
+to keep, so it tells neither a cut nor a lighting change: it is *featureless*, and the stream holds for it (it
+passes through the last frame's table and changes no state; ``methods/rnn``). Judged as a cut, one black frame
+restarted the stream and left the rest of the clip at another level (by 14-21 of 255 in mean on three of five
+validation clips, session 25); fed to the network, it threw the correction off for ten frames.
+
 Ranks come from integer counts and every sum is of half-integers below 2**53, so a host computes the same
 correlation exactly from the same thumbnail. Memory: one thumbnail's ranks.
 """
@@ -21,6 +27,7 @@ correlation exactly from the same thumbnail. Memory: one thumbnail's ranks.
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -33,6 +40,8 @@ from .tone_match import subsample
 DEFAULT_SCENE_CUT = 0.15
 #: The thumbnail's side in pixels.
 THUMB_SIDE = 32
+#: What the test finds of a frame: it continues the last frame's scene, starts another, or has no order to judge.
+Verdict = Literal["continues", "cut", "featureless"]
 
 
 def default_threshold(head: str) -> float:
@@ -50,7 +59,10 @@ def host_rule(threshold: float) -> dict[str, object]:
         "cv::resize(sample, (thumb_side, thumb_side), INTER_AREA), RGB2GRAY), where sample is the tone match's "
         "subsample of the frame; rank of each pixel = (number of thumb pixels darker) + (number equal + 1) / 2; "
         "with r and s the two frames' ranks less their means, corr = sum(r * s) / sqrt(sum(r * r) * sum(s * s)), "
-        "0 when the denominator is 0. From the second frame on, corr below threshold makes this frame a new "
+        "0 when the denominator is 0. A frame whose thumb is one level throughout is featureless: it is held "
+        "(written through the last frame's applied table, identity if none; the network does not run, and the "
+        "recurrent state, the tone match's memory, the frame count and the kept thumbnail stay as they were). "
+        "Otherwise, after the first frame that is not featureless, corr below threshold makes this frame a new "
         "clip: the recurrent state, the tone match's memory and the frame count "
         "start again, as at the first frame. The thumbnail is kept for the next frame.",
     }
@@ -92,7 +104,7 @@ def rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
 
 
 class SceneCutDetector:
-    """Per-clip state: the last frame's thumbnail, as its centred ranks (each frame's are computed once).
+    """Per-clip state: the last judged frame's thumbnail, as its centred ranks (each frame's are computed once).
 
     Args:
         threshold: rank correlation below which a frame starts a new scene, 0 .. 1 (0 never does).
@@ -104,13 +116,17 @@ class SceneCutDetector:
         self.threshold = threshold
         self._previous: np.ndarray | None = None
 
-    def is_cut(self, frame: np.ndarray) -> bool:
-        """Whether ``frame`` starts a new scene after the last one seen (never the first); remembers it.
+    def judge(self, frame: np.ndarray) -> Verdict:
+        """Whether ``frame`` continues the last frame judged, starts a new scene (never the first), or is
+        featureless (its thumbnail one level: neither, and not remembered, so the frame after a flash is judged
+        against the frame before it).
 
         A frame of another size is judged by its thumbnail like any other: ``--content auto`` can move the
         content box within one scene, and its thumbnail still follows the last one."""
         ranks = centred_ranks(thumbnail(frame))
+        if not ranks.any():  # one level: every rank is the mean rank
+            return "featureless"
         previous, self._previous = self._previous, ranks
         if previous is None or self.threshold <= 0:
-            return False
-        return correlation(previous, ranks) < self.threshold
+            return "continues"
+        return "cut" if correlation(previous, ranks) < self.threshold else "continues"

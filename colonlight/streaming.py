@@ -13,8 +13,10 @@ from typing import Any
 
 import numpy as np
 
+from .errors import FrameShapeError
 from .limits import DEFAULT_METHOD
 from .methods import FrameResult, Method, create_method
+from .methods.base import check_frame
 
 
 def enhance_frames(
@@ -30,9 +32,18 @@ def enhance_frames(
     elif options:
         raise TypeError("options go with a method's name; a built Method already has its own")
     stream = method.stream()
-    for frame in frames:
+    for index, frame in enumerate(frames):
+        _check(frame, index)
         yield from stream.push(frame)
     yield from stream.flush()
+
+
+def _check(frame: np.ndarray, index: int) -> None:
+    """``check_frame``, its error naming frame ``index`` of the clip."""
+    try:
+        check_frame(frame)
+    except FrameShapeError as exc:
+        raise FrameShapeError(f"frame {index}: {exc}") from None
 
 
 __all__ = ["enhance_frames"]

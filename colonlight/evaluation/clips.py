@@ -40,6 +40,7 @@ from ..synth import SynthConfig, decode_depth, write_clip
 from ..synth.config import Split
 from ..synth.writer import read_tum
 from ..worker_process import die_with_parent
+from .consistency import MIN_FLOW_SIDE
 
 DEFAULT_MAX_SIZE = 256
 #: Seeds of the benchmark's clips start here: training used 1000-1099 and the quality gate 700000-700023.
@@ -253,6 +254,11 @@ def load_user_clip(
             original = (f.image.shape[1], f.image.shape[0])
             scale = working_scale(*original, max_size)
             size = _target(*original, scale)
+            if min(size) < MIN_FLOW_SIDE:
+                raise InputError(
+                    f"{path}: frames of {original[0]}x{original[1]} ({size[0]}x{size[1]} at the working size) are "
+                    f"too small to evaluate: optical flow needs at least {MIN_FLOW_SIDE} px a side"
+                )
         elif (f.image.shape[1], f.image.shape[0]) != original:
             raise InputError(f"{path}: frame {f.index} changes size mid-clip")
         frames.append(resize_frame(f.image, size))

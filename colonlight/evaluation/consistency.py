@@ -26,9 +26,13 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..errors import InputError
 from ..metrics import bright_fraction, dark_fraction, luma
 
 SSIM_SIGMA = 1.5
+#: Smallest side (pixels) DIS optical flow is given: OpenCV refuses frames under 12 pixels on both sides and
+#: crashes the process (SIGSEGV, OpenCV 5.1) on some under 16 pixels high (64x8, 100x11, 256x12, 256x15).
+MIN_FLOW_SIDE = 16
 #: Relative depth disagreement beyond which a warped pixel is taken as occluded.
 OCCLUSION_TOL = 0.05
 DARK, BRIGHT = 0.1, 0.95
@@ -93,7 +97,12 @@ def _flow_image(frame: np.ndarray) -> np.ndarray:
 
 
 def flow_correspondences(frames: Sequence[np.ndarray]) -> list[Correspondence]:
-    """DIS optical flow ``t-1 -> t`` per pair, with a forward-backward consistency check."""
+    """DIS optical flow ``t-1 -> t`` per pair, with a forward-backward consistency check.
+
+    InputError for frames with a side under :data:`MIN_FLOW_SIDE`, which OpenCV's DIS cannot take."""
+    if frames and min(frames[0].shape[:2]) < MIN_FLOW_SIDE:
+        h, w = frames[0].shape[:2]
+        raise InputError(f"frames of {w}x{h} are too small for optical flow (at least {MIN_FLOW_SIDE} px a side)")
     # cv2's stubs have neither this factory nor calc()'s optional flow argument (None) used below
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)  # type: ignore[attr-defined]
     grey = [_flow_image(f) for f in frames]
@@ -165,6 +174,7 @@ def exposure_fractions(frames: Sequence[np.ndarray], masks: Sequence[np.ndarray]
 
 
 __all__ = [
+    "MIN_FLOW_SIDE",
     "Correspondence",
     "depth_correspondence",
     "depth_correspondences",

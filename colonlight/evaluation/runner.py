@@ -21,7 +21,7 @@ from __future__ import annotations
 import time
 import traceback
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import asdict, dataclass, replace
 from functools import partial
 from pathlib import Path
@@ -174,11 +174,21 @@ def _thumb(frame: np.ndarray) -> np.ndarray:
 
 def _warm_up(method: Method, frames: Sequence[np.ndarray]) -> None:
     """Run a throwaway stream on a few frames so one-off costs (lazy imports, first torch calls, allocator
-    growth) do not land in the first clip's timing."""
-    stream = method.stream()
-    for f in frames[:3]:
-        stream.push(f)
-    stream.flush()
+    growth) do not land in the first clip's timing. A method that fails here fails again when scored, where its
+    error is recorded for it alone."""
+    with suppress(Exception):
+        stream = method.stream()
+        for f in frames[:3]:
+            stream.push(f)
+        stream.flush()
+
+
+def _clip_error(source: str, exc: Exception) -> str:
+    """One line naming ``source`` for a clip that could not be loaded or scored."""
+    if isinstance(exc, ColonlightError):
+        text = str(exc)
+        return text if text.startswith(f"{source}:") else f"{source}: {text}"
+    return f"{source}: cannot evaluate: {type(exc).__name__}: {exc}".splitlines()[0]
 
 
 def _run_method(method: Method, frames: list[np.ndarray]) -> tuple[list[np.ndarray], list[float | None], float, float]:
@@ -532,34 +542,35 @@ def _evaluate_clips(
     warmed = False
     for item in clips:
         name = item.name
+        source = str(item.path) if isinstance(item, ClipRef) else item.source
         if progress:
             progress("clip", {"clip": name})
         try:
             clip = item.load(max_size, fps, max_frames) if isinstance(item, ClipRef) else item
-        except ColonlightError as exc:
-            source = str(item.path) if isinstance(item, ClipRef) else item.source
-            result.failures.append({"clip": name, "source": source, "error": str(exc)})
+            if not warmed:
+                for _, m in built:
+                    _warm_up(m, clip.frames)
+                warmed = True
+            keep = len(result.strips) < strips
+            record, thumbs = evaluate_clip(
+                clip,
+                built,
+                colmap=colmap,
+                tracker=tracker,
+                colmap_settings=colmap_settings,
+                tracker_settings=tracker_settings,
+                brightness=brightness,
+                oracles=oracles,
+                keep_strip=keep,
+                progress=progress,
+                cache=cache,
+            )
+        except Exception as exc:  # noqa: BLE001 - a clip that cannot be scored fails alone, the others go on
+            error = _clip_error(source, exc)
+            result.failures.append({"clip": name, "source": source, "error": error})
             if progress:
-                progress("failed", {"clip": name, "error": str(exc)})
+                progress("failed", {"clip": name, "error": error})
             continue
-        if not warmed:
-            for _, m in built:
-                _warm_up(m, clip.frames)
-            warmed = True
-        keep = len(result.strips) < strips
-        record, thumbs = evaluate_clip(
-            clip,
-            built,
-            colmap=colmap,
-            tracker=tracker,
-            colmap_settings=colmap_settings,
-            tracker_settings=tracker_settings,
-            brightness=brightness,
-            oracles=oracles,
-            keep_strip=keep,
-            progress=progress,
-            cache=cache,
-        )
         result.clips.append(record)
         if keep:
             result.strips[clip.name] = thumbs

@@ -78,6 +78,8 @@ def parse_source(text: str, input_format: str | None = None, options: Mapping[st
         return SourceSpec(text, "device", text, input_format or "v4l2", opts)
     path = Path(text)
     if not path.exists():
+        if os.path.lexists(path):
+            raise InputError(f"{text}: a dangling symbolic link (or a link loop)")
         raise InputError(f"{text}: no such file (a stream URL needs a scheme such as udp:// or http://)")
     if path.is_dir():
         raise InputError(f"{text}: is a folder; `colonlight stream` reads one video, device or URL")
@@ -124,6 +126,8 @@ def _cause(exc: BaseException) -> str:
         return "no data before the timeout"
     if isinstance(exc, av.error.InvalidDataError):
         return "not a video stream FFmpeg recognises (invalid data)"
+    if isinstance(exc, av.error.EOFError):
+        return "the source ends before its first video frame"
     text = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
     return " ".join(str(text).split())
 

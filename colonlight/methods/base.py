@@ -65,8 +65,10 @@ class Method(ABC):
 
 
 def check_frame(frame: np.ndarray) -> None:
-    """Raise ``ValueError`` unless ``frame`` is ``(H, W, 3)`` uint8."""
+    """Raise ``FrameShapeError`` (a ``ValueError``) unless ``frame`` is a non-empty ``(H, W, 3)`` uint8 array."""
     if not isinstance(frame, np.ndarray) or frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
         shape = getattr(frame, "shape", None)
         dtype = getattr(frame, "dtype", type(frame).__name__)
         raise FrameShapeError(f"expected an (H, W, 3) uint8 RGB frame, got shape {shape} dtype {dtype}")
+    if frame.size == 0:  # would fail deep inside OpenCV or torch, each in its own way
+        raise FrameShapeError(f"empty frame of shape {frame.shape}: a frame needs at least one pixel")

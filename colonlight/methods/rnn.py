@@ -162,6 +162,7 @@ class RecurrentGammaStream(MethodStream):
         self._index = 0
         self._matcher = ToneMatcher(method.tone_match) if method.tone_match > 0 else None
         self._cuts = SceneCutDetector(method.scene_cut) if method.scene_cut > 0 else None
+        self._last: tuple[np.ndarray | None, float] = (None, 1.0)  # the last frame's applied table and gamma
 
     def predict(self, frame: np.ndarray) -> list[float]:
         """Advance the recurrent state by one frame and return the head's raw outputs (``[a]`` for the
@@ -180,12 +181,18 @@ class RecurrentGammaStream(MethodStream):
         """Forget the clip so far (a scene cut): the next frame is treated as a clip's first."""
         self._state = None
         self._index = 0
+        self._last = (None, 1.0)
         if self._matcher is not None:
             self._matcher = ToneMatcher(self._matcher.weight)
 
     def push(self, frame: np.ndarray) -> list[FrameResult]:
         check_frame(frame)
-        cut = self._cuts is not None and self._cuts.is_cut(frame)
+        verdict = self._cuts.judge(frame) if self._cuts is not None else "continues"
+        if verdict == "featureless":  # nothing to judge or learn from (scene_cut): held, no state changes
+            lut, gamma = self._last
+            held = frame if lut is None else apply_lut(frame, lut)
+            return [FrameResult(frame=held, gamma=gamma, info={"held": True})]
+        cut = verdict == "cut"
         if cut:
             self.restart()
         raw = self.predict(frame)
@@ -198,6 +205,7 @@ class RecurrentGammaStream(MethodStream):
         if index < self._method.seeds:
             if self._matcher is not None:
                 self._matcher.keep(frame, IDENTITY_LUT)  # written unchanged: the next frame matches to it
+            self._last = (None, 1.0)
             return [FrameResult(frame=frame, gamma=1.0, info={**info, "seed": True})]
         correction = head_correction(head, raw)
         info.update(correction.extra)
@@ -208,6 +216,7 @@ class RecurrentGammaStream(MethodStream):
             lut = self._matcher.table(frame, lut)
             info["applied_gamma"] = table_gamma(lut)
         corrected = frame if lut is None else apply_lut(frame, lut)
+        self._last = (lut, correction.gamma)
         return [FrameResult(frame=corrected, gamma=correction.gamma, info=info)]
 
 

@@ -7,7 +7,7 @@
 // (h, c in -> h_out, c_out out; zeros at the start), turns the step's output into the frame's correction by the
 // rule the sidecar gives for its head (gamma, gain-gamma or curve), pulls its tones toward the last output
 // frame's where the sidecar's tone_match says so, starts afresh at a cut to another scene where its scene_cut
-// does, applies the correction to the full-resolution frame through a 256-entry table, and prints one JSON line
+// does (and holds a featureless frame: the last table, no state change), applies the correction to the full-resolution frame through a 256-entry table, and prints one JSON line
 // per frame on standard output. `--out FILE` writes the enhanced frames (raw RGB24) there. Errors: one line on
 // standard error, exit 1 (2 for a usage error).
 #include <onnxruntime_cxx_api.h>
@@ -285,8 +285,11 @@ class ToneMatcher {
 };
 
 // colonlight.scene_cut (the sidecar's "scene_cut"): a frame whose grey thumbnail does not keep the last frame's
-// order of pixel brightness (rank correlation below the threshold; lighting changes keep it) starts a new clip.
+// order of pixel brightness (rank correlation below the threshold; lighting changes keep it) starts a new clip;
+// a frame whose thumbnail is one level (a dropout, a flash) has no order to judge and is held.
 // Off when the threshold is 0 (the paper's one-gamma head) or the sidecar predates it.
+enum class Verdict { continues, cut, featureless };
+
 class SceneCuts {
    public:
     explicit SceneCuts(const json& side) {
@@ -299,13 +302,15 @@ class SceneCuts {
 
     bool on() const { return threshold_ > 0.0; }
 
-    // Whether rgb starts a new scene after the last frame seen (never the first); remembers it.
-    bool is_cut(const cv::Mat& rgb) {
+    // Whether rgb continues the last frame judged, starts a new scene (never the first), or is featureless
+    // (neither, and not remembered); remembers the others.
+    Verdict judge(const cv::Mat& rgb) {
         std::vector<double> ranks = centred_ranks(thumbnail(rgb));
+        if (std::all_of(ranks.begin(), ranks.end(), [](double r) { return r == 0.0; })) return Verdict::featureless;
         const bool cut = has_previous_ && correlation(previous_, ranks) < threshold_;
         previous_ = std::move(ranks);
         has_previous_ = true;
-        return cut;
+        return cut ? Verdict::cut : Verdict::continues;
     }
 
    private:
@@ -372,6 +377,14 @@ std::string number(double v) {
     return buf;
 }
 
+// Writes rgb through c's table (every sample, every channel), or as it is when c applies none.
+void write_frame(std::ofstream& out, const std::string& out_path, const cv::Mat& rgb, Correction& c) {
+    cv::Mat enhanced = rgb;
+    if (c.apply) cv::LUT(rgb, cv::Mat(1, 256, CV_8U, c.lut.data()), enhanced);
+    out.write(reinterpret_cast<const char*>(enhanced.data), static_cast<std::streamsize>(enhanced.total() * 3));
+    if (!out) throw Failure(out_path + ": write failed");
+}
+
 json read_json(const std::string& path) {
     std::ifstream in(path);
     if (!in) throw Failure(path + ": cannot read the sidecar (export writes it beside the graph)");
@@ -427,19 +440,29 @@ int run(const std::string& model, int width, int height, const std::string& out_
     }
     const std::size_t frame_bytes = static_cast<std::size_t>(width) * height * 3;
     std::vector<std::uint8_t> buffer(frame_bytes);
-    long since_start = 0;  // frames since the clip's start or its last scene cut
-    for (long index = 0;; ++index, ++since_start) {
+    long since_start = 0;  // frames run since the clip's start or its last scene cut
+    Correction last;       // the last frame's applied correction: a held frame is written through it
+    for (long index = 0;; ++index) {
         std::cin.read(reinterpret_cast<char*>(buffer.data()), static_cast<std::streamsize>(frame_bytes));
         if (std::cin.gcount() == 0) break;
         if (static_cast<std::size_t>(std::cin.gcount()) != frame_bytes)
             throw Failure("standard input ended inside frame " + std::to_string(index) + " (not " +
                           std::to_string(width) + "x" + std::to_string(height) + " RGB24?)");
         cv::Mat rgb(height, width, CV_8UC3, buffer.data());
-        const bool cut = cuts.on() && cuts.is_cut(rgb);
-        if (cut) {  // a new clip: the state, the frame count and the tone match's memory start again
+        const Verdict verdict = cuts.on() ? cuts.judge(rgb) : Verdict::continues;
+        if (verdict == Verdict::featureless) {  // held: the last frame's table, no state changes
+            std::cout << "{\"index\": " << index << ", \"head\": [], \"seed\": false, \"scene_cut\": false, "
+                      << "\"held\": true, \"gamma\": " << number(last.gamma) << ", \"clamped\": false}\n"
+                      << std::flush;
+            if (out_file.is_open()) write_frame(out_file, out_path, rgb, last);
+            continue;
+        }
+        const bool cut = verdict == Verdict::cut;
+        if (cut) {  // a new clip: the state, the frame count, the tone match's memory and the last table start again
             for (std::size_t s = 1; s < in_data.size(); ++s) std::fill(in_data[s].begin(), in_data[s].end(), 0.0f);
             since_start = 0;
             matcher = ToneMatcher(side);
+            last = Correction{};
         }
         cv::Mat x = network_input(rgb, size, presample);
         std::vector<float>& frame = in_data[0];  // NCHW, channels R G B, value / 255
@@ -464,7 +487,7 @@ int run(const std::string& model, int width, int height, const std::string& out_
             std::copy_n(p, in_data[1 + s].size(), in_data[1 + s].begin());
         }
 
-        const bool seed = since_start < seeds;  // seeds build the state and pass through unchanged
+        const bool seed = since_start++ < seeds;  // seeds build the state and pass through unchanged
         Correction c = seed ? Correction{} : rule.correct(head);
         if (matcher.on()) {
             Lut identity{};
@@ -479,7 +502,7 @@ int run(const std::string& model, int width, int height, const std::string& out_
         std::string line = "{\"index\": " + std::to_string(index) + ", \"head\": [";
         for (std::size_t i = 0; i < head.size(); ++i) line += (i ? ", " : "") + number(head[i]);
         line += "], \"seed\": " + std::string(seed ? "true" : "false") + ", \"scene_cut\": " +
-                std::string(cut ? "true" : "false") + ", \"gamma\": " + number(c.gamma);
+                std::string(cut ? "true" : "false") + ", \"held\": false, \"gamma\": " + number(c.gamma);
         if (rule.head == "gain-gamma") line += ", \"gain\": " + number(c.gain);
         if (rule.head == "curve" && !c.curve.empty()) {
             line += ", \"curve\": [";
@@ -489,12 +512,8 @@ int run(const std::string& model, int width, int height, const std::string& out_
         line += ", \"clamped\": " + std::string(c.clamped ? "true" : "false") + "}";
         std::cout << line << '\n' << std::flush;
 
-        if (out_file.is_open()) {
-            cv::Mat enhanced = rgb;
-            if (c.apply) cv::LUT(rgb, cv::Mat(1, 256, CV_8U, c.lut.data()), enhanced);  // every sample, every channel
-            out_file.write(reinterpret_cast<const char*>(enhanced.data), static_cast<std::streamsize>(frame_bytes));
-            if (!out_file) throw Failure(out_path + ": write failed");
-        }
+        if (out_file.is_open()) write_frame(out_file, out_path, rgb, c);
+        last = c;
     }
     return 0;
 }

@@ -32,3 +32,23 @@ def test_enhance_frames_refuses_options_for_a_built_method() -> None:
 
     with pytest.raises(TypeError):
         next(colonlight.enhance_frames([], colonlight.create_method("deflicker"), size=3))
+
+
+@pytest.mark.parametrize("method", ["rnn", "deflicker", "he", "zerodce"])
+def test_enhance_frames_refuses_a_bad_frame_naming_it(method: str) -> None:
+    """An empty frame (a side of 0) passed the methods' type check and failed deep in OpenCV, torch or a
+    division by zero, each in its own words; every bad frame is now a FrameShapeError (a ValueError) naming it."""
+    import numpy as np
+
+    import colonlight
+    from colonlight.errors import FrameShapeError
+
+    good = np.full((24, 32, 3), 90, np.uint8)
+    for bad, words in (
+        (np.zeros((24, 0, 3), np.uint8), "empty frame of shape (24, 0, 3)"),
+        (np.zeros((0, 0, 3), np.uint8), "empty frame of shape (0, 0, 3)"),
+        (np.full((24, 32, 3), 0.5), "expected an (H, W, 3) uint8 RGB frame"),
+    ):
+        with pytest.raises(FrameShapeError, match=r"^frame 2: ") as info:
+            list(colonlight.enhance_frames([good, good, bad, good], method))
+        assert isinstance(info.value, ValueError) and words in str(info.value)

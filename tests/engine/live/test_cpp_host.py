@@ -198,3 +198,28 @@ def test_the_cpp_host_starts_afresh_at_a_scene_cut(host: Path, clip: list[np.nda
     assert np.array_equal(frames[FRAMES:], np.fromfile(tmp_path / "alone.rgb", np.uint8).reshape(frames[FRAMES:].shape))
     for out, result in zip(frames[FRAMES:], ours[FRAMES:], strict=True):  # and colonlight's, to a .5 rounding
         assert np.max(np.abs(out.astype(int) - result.frame.astype(int))) <= 1
+
+
+def test_the_cpp_host_holds_a_featureless_frame(host: Path, clip: list[np.ndarray], tmp_path: Path) -> None:
+    """A black dropout inside the clip: the host holds it where colonlight does (the last table, no state
+    change), and every frame after it is what the host writes for the clip without it."""
+    at = FRAMES // 2
+    flashed_clip = clip[:at] + [np.zeros_like(clip[0])] + clip[at:]
+    weights = load_weights()
+    method = RecurrentGammaMethod(weights=weights, device="cpu")
+    stream = method.stream()
+    ours = [r for f in flashed_clip for r in stream.push(f)]
+    assert [i for i, r in enumerate(ours) if r.info.get("held")] == [at]
+    onnx = tmp_path / "model.onnx"
+    export_onnx(weights, onnx, size=method.model_size)
+    flashed = _run_host(host, onnx, flashed_clip, tmp_path / "flashed.rgb")
+    plain = _run_host(host, onnx, clip, tmp_path / "plain.rgb")
+    assert [i for i, r in enumerate(flashed) if r["held"]] == [at] and not any(r["scene_cut"] for r in flashed)
+    assert flashed[at]["gamma"] == plain[at - 1]["gamma"] and flashed[at]["head"] == []
+    assert [r["head"] for r in flashed[at + 1 :]] == [r["head"] for r in plain[at:]]
+    frames = np.fromfile(tmp_path / "flashed.rgb", np.uint8).reshape(-1, HEIGHT, WIDTH, 3)
+    alone = np.fromfile(tmp_path / "plain.rgb", np.uint8).reshape(-1, HEIGHT, WIDTH, 3)
+    assert np.array_equal(frames[at + 1 :], alone[at:])
+    written = alone[at - 1][clip[at - 1] == 0]  # the last table at 0, read off the frame before
+    assert written.size and np.all(frames[at] == written[0])
+    assert np.max(np.abs(frames[at].astype(int) - ours[at].frame.astype(int))) <= 1  # and colonlight's

@@ -218,6 +218,21 @@ def test_sources_are_classified(tmp_path: Path) -> None:
         parse_source(str(tmp_path / "missing.mp4"))
 
 
+def test_link_loops_and_frameless_files_are_named_as_such(tmp_path: Path) -> None:
+    """A link loop is not "no such file"; FFmpeg's "End of file" of a container without frames says what it means."""
+    from colonlight.live.source import open_source
+
+    from ...media import make_clip
+
+    (tmp_path / "a.mp4").symlink_to(tmp_path / "b.mp4")
+    (tmp_path / "b.mp4").symlink_to(tmp_path / "a.mp4")
+    with pytest.raises(InputError, match=r"a\.mp4: a dangling symbolic link \(or a link loop\)$"):
+        parse_source(str(tmp_path / "a.mp4"))
+    empty = make_clip(tmp_path / "empty.mkv", 0)  # a Matroska header, no frame
+    with pytest.raises(InputError, match=r"empty\.mkv: cannot open \(the source ends before its first video frame\)$"):
+        open_source(parse_source(str(empty)), timeout_s=10)
+
+
 def test_absent_capture_device_is_one_clear_line(tmp_path: Path) -> None:
     absent = Path("/dev/video97")
     if absent.exists():

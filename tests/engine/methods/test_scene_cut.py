@@ -10,6 +10,7 @@ import pytest
 
 from colonlight.curves import gain_gamma_lut
 from colonlight.errors import MethodOptionError
+from colonlight.methods import FrameResult
 from colonlight.methods.options import method_kwargs
 from colonlight.methods.rnn import RecurrentGammaMethod
 from colonlight.scene_cut import (
@@ -24,6 +25,12 @@ from colonlight.synth import SynthConfig, generate_clip
 from tests.networks import random_head_weights
 
 WIDTH, HEIGHT, FRAMES = 128, 96, 12
+
+
+def _run(method: RecurrentGammaMethod, frames: list[np.ndarray]) -> list[FrameResult]:
+    """One clip through a fresh stream of ``method``."""
+    stream = method.stream()
+    return [r for f in frames for r in stream.push(f)]
 
 
 def _clip(seed: int, **overrides: object) -> list[np.ndarray]:
@@ -68,19 +75,61 @@ def test_a_disturbed_clip_has_no_cut() -> None:
     jumps = np.abs(np.diff([f.mean() for f in frames]))
     assert jumps.max() > 8, "the clip must change its lighting, or this proves little"
     detector = SceneCutDetector(DEFAULT_SCENE_CUT)
-    assert not any(detector.is_cut(f) for f in frames)
+    assert {detector.judge(f) for f in frames} == {"continues"}
 
 
 def test_a_frame_of_another_size_is_judged_by_its_content(
     scenes: tuple[list[np.ndarray], list[np.ndarray]],
 ) -> None:
     """``--content auto`` may move the content box within a scene: a slightly cropped frame is no cut; a frame
-    with no order to keep (flat) is one at any size."""
-    first = scenes[0]
+    with no order to keep (flat) is featureless at any size, and the next frame is judged against the last
+    frame that had one."""
+    first, second = scenes
     detector = SceneCutDetector(DEFAULT_SCENE_CUT)
-    assert not detector.is_cut(first[0]) and not detector.is_cut(first[1])
-    assert not detector.is_cut(np.ascontiguousarray(first[2][4:-4, 6:-6]))
-    assert detector.is_cut(np.full((HEIGHT // 2, WIDTH // 2, 3), 90, np.uint8))
+    assert detector.judge(first[0]) == "continues" and detector.judge(first[1]) == "continues"
+    assert detector.judge(np.ascontiguousarray(first[2][4:-4, 6:-6])) == "continues"
+    assert detector.judge(np.full((HEIGHT // 2, WIDTH // 2, 3), 90, np.uint8)) == "featureless"
+    assert detector.judge(first[-1]) == "continues"
+    assert detector.judge(np.zeros_like(first[0])) == "featureless"
+    assert detector.judge(second[0]) == "cut"
+    # a frame with two levels has an order: judged, not held
+    two_levels = np.zeros_like(first[0])
+    two_levels[: HEIGHT // 2] = 200
+    assert detector.judge(two_levels) != "featureless"
+
+
+@pytest.mark.parametrize("which", ["darkest", "median", "brightest"])
+def test_a_featureless_frame_is_held_and_the_clip_goes_on_as_without_it(
+    scenes: tuple[list[np.ndarray], list[np.ndarray]], which: str
+) -> None:
+    """A dropout or a flash inside a clip: the frame passes through the last frame's table, records the last
+    gamma, and the frames after it are byte for byte what they are without it (no cut, nothing learnt from it)."""
+    first = scenes[0]
+    ours = RecurrentGammaMethod(device="cpu")
+    plain = _run(ours, first)
+    at = len(first) // 2
+    before = first[at - 1]
+    level = {"darkest": before.min(), "median": int(np.median(before)), "brightest": before.max()}[which]
+    flashed = _run(ours, first[:at] + [np.full_like(before, level)] + first[at:])
+    held = flashed[at]
+    assert held.info == {"held": True} and held.gamma == plain[at - 1].gamma
+    # the last table, read off the frame before: where its input had this level, its output has the held one's
+    written = plain[at - 1].frame[before == level]
+    assert written.size and np.all(held.frame == written[0]) and np.all(written == written[0])
+    assert not np.array_equal(plain[at - 1].frame, before), "the frame before must be corrected to mean anything"
+    assert not any(r.info.get("scene_cut") for r in flashed)
+    for with_flash, without in zip(flashed[at + 1 :], plain[at:], strict=True):
+        assert np.array_equal(with_flash.frame, without.frame) and with_flash.gamma == without.gamma
+        assert with_flash.info == without.info
+
+
+def test_a_clip_of_featureless_frames_passes_unchanged() -> None:
+    """Constant and alternating black-and-white video: nothing to correct, nothing to learn, no error."""
+    ours = RecurrentGammaMethod(device="cpu")
+    frames = [np.full((HEIGHT, WIDTH, 3), v, np.uint8) for v in (0, 255, 0, 255, 128, 128, 128)]
+    results = list(_run(ours, frames))
+    assert [r.info for r in results] == [{"held": True}] * len(frames)
+    assert all(np.array_equal(r.frame, f) and r.gamma == 1.0 for r, f in zip(results, frames, strict=True))
 
 
 def test_the_stream_starts_afresh_at_a_cut(scenes: tuple[list[np.ndarray], list[np.ndarray]]) -> None:
