@@ -10,7 +10,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from colonlight import ColonlightError
+from colonlight import ColonlightError, parse_content_mode
 from colonlight.limits import DEFAULT_FPS
 
 from . import options
@@ -193,6 +193,7 @@ def evaluate(
             "(ceilings for a global per-frame correction) and the breakdown of the input's failures.",
         ),
     ] = True,
+    content: str = options.Content,
     fps: Annotated[
         float, typer.Option("--fps", help="Extraction rate of videos (FFmpeg fps-filter choice); 0 keeps all.")
     ] = DEFAULT_FPS,
@@ -242,6 +243,10 @@ def evaluate(
     if brightness not in ("fixed", "affine", "both"):
         raise typer.BadParameter("choose fixed, affine or both", param_hint="--brightness")
     try:
+        content = parse_content_mode(content)
+    except ColonlightError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--content") from None
+    try:
         require_extras(colmap)
     except ColonlightError as exc:
         error_line(str(exc))
@@ -251,6 +256,13 @@ def evaluate(
 
     if not inputs and not synthetic:
         raise typer.BadParameter("give clips to evaluate, or --synthetic N", param_hint="INPUTS")
+    from colonlight import OutputError, prepare_output
+
+    try:  # before any work: an output that is a file or cannot be written is one line, not a traceback at the end
+        prepare_output(output)
+    except OutputError as exc:
+        error_line(str(exc))
+        raise typer.Exit(2) from None
     rows = [*names, *(["rnn"] if authors_checkpoint is not None and "rnn" not in names else [])]
     specs = method_list(names, authors_checkpoint, chosen=options.method_kwargs(ctx, *rows))
     if authors_checkpoint is not None and not authors_checkpoint.is_file():
@@ -296,7 +308,7 @@ def evaluate(
             result = evaluate_clips(
                 refs, specs, colmap=colmap, tracker=tracker, max_size=max_size or None, fps=fps,
                 max_frames=max_frames or None, threads=threads, progress=display.event,
-                brightness=brightness, oracles=oracles,
+                brightness=brightness, oracles=oracles, content=content,
                 cache_dir=output / "cache" if cache else None,
             )  # fmt: skip
         except ColonlightError as exc:

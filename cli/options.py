@@ -18,6 +18,7 @@ from colonlight.limits import (
     MAX_FPS,
     MAX_GAP_FRAMES_ENV,
     MAX_PIXELS_ENV,
+    MIN_FPS,
 )
 from colonlight.methods.options import OPTIONS, methods_kwargs, option
 
@@ -147,8 +148,10 @@ def invocation(ctx: typer.Context) -> str:
 
 
 def check_fps(fps: float) -> None:
-    """A usage error unless ``0 <= fps <= MAX_FPS`` (the service's bound too)."""
-    if not 0 <= fps <= MAX_FPS:
+    """A usage error unless ``0 <= fps <= MAX_FPS`` (the service's bound too) and ``fps`` is 0 or at least
+    ``MIN_FPS`` (1/1001: a lower rate rounds to 0 frames per second)."""
+    if not (0 <= fps <= MAX_FPS and (fps == 0 or fps >= MIN_FPS)):
         raise typer.BadParameter(
-            f"must be within 0..{MAX_FPS:g} frames per second (0 keeps every frame), got {fps:g}", param_hint="--fps"
+            f"must be within 0..{MAX_FPS:g} frames per second (0 keeps every frame; else at least 1/1001), got {fps:g}",
+            param_hint="--fps",
         )

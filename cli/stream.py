@@ -131,6 +131,7 @@ def stream(
         DEFAULT_JPEG_QUALITY, "--quality", min=MIN_JPEG_QUALITY, max=MAX_JPEG_QUALITY, help="JPEG quality."
     ),
     keep: int = typer.Option(0, "--keep", min=0, help="Keep only the newest N frames in OUTPUT/frames/ (0: all)."),
+    content: str = options.Content,
     realtime: bool = typer.Option(
         False,
         "--realtime",
@@ -205,6 +206,7 @@ def stream(
             reconnect=reconnect,
             timeout_s=timeout,
             duration_s=duration,
+            content=content,
         )
     except OptionError as exc:
         raise typer.BadParameter(str(exc)) from exc

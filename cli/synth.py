@@ -6,20 +6,25 @@ from pathlib import Path
 
 import typer
 
-from colonlight.limits import DEFAULT_FPS
+from colonlight.limits import DEFAULT_FPS, MAX_FPS
 
-from .display import console
+from .display import console, error_line
 from .options import clip_mix
+
+#: Largest clip side rendered (a frame of 4096 x 4096 is the pixel cap `enhance` reads by default).
+MAX_SIZE = 4096
 
 
 def synth(
     output: Path = typer.Argument(..., help="Folder to write clips into (one sub-folder per clip)."),
     clips: int = typer.Option(1, "--clips", "-n", min=1, help="Number of clips."),
-    seed: int = typer.Option(0, "--seed", help="Seed of the first clip; clip i uses seed + i."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed of the first clip; clip i uses seed + i."),
     frames: int = typer.Option(90, "--frames", min=2, help="Frames per clip."),
-    width: int = typer.Option(384, "--width", min=32),
-    height: int = typer.Option(288, "--height", min=32),
-    fps: float = typer.Option(DEFAULT_FPS, "--fps", min=1.0, help="Frame rate of the clip (and its timestamps)."),
+    width: int = typer.Option(384, "--width", min=32, max=MAX_SIZE),
+    height: int = typer.Option(288, "--height", min=32, max=MAX_SIZE),
+    fps: float = typer.Option(
+        DEFAULT_FPS, "--fps", min=1.0, max=MAX_FPS, help="Frame rate of the clip (and its timestamps)."
+    ),
     split: str = typer.Option(
         "train", "--split", help="Parameter family: train | heldout (ranges never used in training)."
     ),
@@ -48,22 +53,26 @@ def synth(
     if border not in BORDERS:
         raise typer.BadParameter(f"choose one of {', '.join(BORDERS)}", param_hint="--border")
     overlay = OverlaySpec(border=border, fov=fov, text=text)  # type: ignore[arg-type]
-    paths = make_dataset(
-        output,
-        clips,
-        seed=seed,
-        split=family,
-        width=width,
-        height=height,
-        n_frames=frames,
-        fps=fps,
-        workers=workers,
-        video=video,
-        steady_fraction=steady,
-        occluder_fraction=occluders,
-        clean_seeds_fraction=clean_seeds,
-        overlay=overlay if overlay.active else None,
-    )
+    try:
+        paths = make_dataset(
+            output,
+            clips,
+            seed=seed,
+            split=family,
+            width=width,
+            height=height,
+            n_frames=frames,
+            fps=fps,
+            workers=workers,
+            video=video,
+            steady_fraction=steady,
+            occluder_fraction=occluders,
+            clean_seeds_fraction=clean_seeds,
+            overlay=overlay if overlay.active else None,
+        )
+    except OSError as exc:  # the output is a file, read-only, full: one line naming the path, not a traceback
+        error_line(f"{exc.filename or output}: cannot write the clips: {exc.strerror or exc}")
+        raise typer.Exit(1) from None
     for p in paths:
         console.print(f"wrote {p}")
 

@@ -2,16 +2,17 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from colonlight.limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE
+from colonlight.limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE, MAX_MODEL_SIZE
 
 from .display import console, error_line, printable
-from .options import clip_mix, invocation
+from .options import check_fps, clip_mix, invocation
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
@@ -91,13 +92,13 @@ def train_cmd(
     ),
     val: list[Path] | None = typer.Option(None, "--val", help="Validation clip(s); default: the last clip of DATA."),
     synthetic: int = typer.Option(0, "--synthetic", min=0, help="Also render this many synthetic training clips."),
-    synthetic_seed: int = typer.Option(1000, "--synthetic-seed", help="Seed of the first synthetic clip."),
+    synthetic_seed: int = typer.Option(1000, "--synthetic-seed", min=0, help="Seed of the first synthetic clip."),
     synthetic_frames: int = typer.Option(100, "--synthetic-frames", min=12),
     synthetic_val: int = typer.Option(
         2, "--synthetic-val", min=0, help="Synthetic validation clips (seeds after the training ones)."
     ),
     synthetic_size: int = typer.Option(
-        128, "--synthetic-size", min=32, help="Render size of synthetic clips (then resized to --size)."
+        128, "--synthetic-size", min=32, max=4096, help="Render size of synthetic clips (then resized to --size)."
     ),
     synthetic_steady: float = clip_mix("steady", "--synthetic-steady", 0.25),
     synthetic_occluders: float = clip_mix("occluders", "--synthetic-occluders", 0.0),
@@ -149,6 +150,7 @@ def train_cmd(
         DEFAULT_MODEL_SIZE,
         "--size",
         min=16,
+        max=MAX_MODEL_SIZE,
         help=f"Training input size (match the inference default, {DEFAULT_MODEL_SIZE}).",
     ),
     epochs: int = typer.Option(10, "--epochs", min=1),
@@ -183,6 +185,7 @@ def train_cmd(
     if export_epoch is not None:
         _export_epoch(output, export_epoch)
         return
+    _check_numbers(fps, lr, consistency=consistency, temporal=temporal, exposure_jitter=exposure_jitter, anchor=anchor)
     command = invocation(ctx)
     if method == "rnn" and init == "default":
         from colonlight import DEFAULT_WEIGHTS
@@ -303,6 +306,19 @@ def train_cmd(
         )
     console.print(f"weights: {result.weights}\ncard:    {result.weights.with_suffix('.json')}")
     _exit_if_skipped(result.skipped, " (listed in the card)")
+
+
+def _check_numbers(fps: float, lr: float, **weights: float) -> None:
+    """Usage errors for values no run can use, before anything is read or rendered: an fps outside enhance's
+    range, a learning rate that is not a finite number above 0, a loss weight that is not finite."""
+    check_fps(fps)
+    if not (math.isfinite(lr) and lr > 0):
+        raise typer.BadParameter(f"must be a finite number above 0, got {lr:g}", param_hint="--lr")
+    for name, value in weights.items():
+        if not math.isfinite(value):
+            raise typer.BadParameter(
+                f"must be a finite number, got {value:g}", param_hint="--" + name.replace("_", "-")
+            )
 
 
 def _export_epoch(run_dir: Path, epoch: int) -> None:

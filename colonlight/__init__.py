@@ -31,6 +31,10 @@ _EXPORTS: dict[str, str] = {
     "LoadedWeights": "checkpoint",
     "load_weights": "checkpoint",
     "save_weights": "checkpoint",
+    "DEFAULT_CONTENT": "content",
+    "content_stream": "content",
+    "live_content_stream": "content",
+    "parse_content_mode": "content",
     "apply_gamma": "curves",
     "apply_lut": "curves",
     "gamma_lut": "curves",
@@ -63,6 +67,7 @@ _EXPORTS: dict[str, str] = {
     "train_zerodce": "methods.zerodce_train",
     "OutputError": "outdir",
     "output_lock": "outdir",
+    "prepare_output": "outdir",
     "GammaNet": "model",
     "export_onnx": "onnx_export",
     "onnx_sidecar_path": "onnx_export",
@@ -93,6 +98,7 @@ if TYPE_CHECKING:
     from .batch import MANIFEST_FILE, ManifestError, default_workers, run_batch, warm_method
     from .checkpoint import DEFAULT_WEIGHTS, LoadedWeights, load_weights, save_weights
     from .cluster import ClusterRunner
+    from .content import DEFAULT_CONTENT, content_stream, live_content_stream, parse_content_mode
     from .curves import apply_gamma, apply_lut, gamma_lut
     from .device import resolve_device
     from .discovery import VIDEO_SUFFIXES, PathProblem, discover, discover_clips, synthetic_folder_of
@@ -104,7 +110,7 @@ if TYPE_CHECKING:
     from .methods.zerodce_train import train_zerodce
     from .model import GammaNet
     from .onnx_export import export_onnx, onnx_sidecar_path
-    from .outdir import OutputError, output_lock
+    from .outdir import OutputError, output_lock, prepare_output
     from .pipeline import GAMMAS_FILE, VIDEO_FILE, ClipOptions, ClipResult, enhance_clip, iter_enhanced
     from .provenance import library_versions
     from .slam_layout import read_camera
@@ -136,6 +142,7 @@ __all__ = [
     "ClipResult",
     "ClusterRunner",
     "ColonlightError",
+    "DEFAULT_CONTENT",
     "DEFAULT_WEIGHTS",
     "DeviceError",
     "EpochRecord",
@@ -163,6 +170,7 @@ __all__ = [
     "atomic_path",
     "available_methods",
     "clip_frames",
+    "content_stream",
     "create_method",
     "default_workers",
     "discover",
@@ -177,12 +185,15 @@ __all__ = [
     "is_available",
     "iter_enhanced",
     "library_versions",
+    "live_content_stream",
     "load_weights",
     "method_for",
     "network_threads",
     "onnx_sidecar_path",
     "output_lock",
+    "parse_content_mode",
     "parse_model_size",
+    "prepare_output",
     "probe_video",
     "read_camera",
     "resolve_device",

@@ -106,7 +106,10 @@ def remove_stale_temporaries(folder: Path, recursive: bool = True) -> int:
     many."""
     count = 0
     folder = Path(folder)
-    if not folder.is_dir():
+    try:
+        if not folder.is_dir():
+            return 0
+    except OSError:  # a name too long for the file system (ENAMETOOLONG), an I/O error: nothing of ours is there
         return 0
     for p in folder.rglob(f"*{TMP_MARK}*") if recursive else folder.glob(f"*{TMP_MARK}*"):
         if p.is_file():

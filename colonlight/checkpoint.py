@@ -24,6 +24,7 @@ from safetensors.torch import load_file, save_file
 
 from .atomic import atomic_path, write_json_atomic
 from .errors import CheckpointError
+from .limits import MAX_MODEL_SIZE, MIN_MODEL_SIZE
 from .model import HEAD_OUTPUTS, INPUT_CHANNELS, GammaNet
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
@@ -81,6 +82,13 @@ def read_card(path: Path, digest: str) -> dict[str, Any]:
         card: dict[str, Any] = json.loads(cp.read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
         raise CheckpointError(f"{cp}: unreadable model card ({exc})") from exc
+    if not isinstance(card, dict):
+        raise CheckpointError(f"{cp}: unreadable model card (a JSON object expected, found {type(card).__name__})")
+    for key, low, high in (("input_size", MIN_MODEL_SIZE, MAX_MODEL_SIZE), ("seed_frames", 0, 1 << 20)):
+        value = card.get(key)
+        whole = isinstance(value, int) or (isinstance(value, float) and value.is_integer())
+        if value is not None and (isinstance(value, bool) or not whole or not low <= value <= high):
+            raise CheckpointError(f"{cp}: model card's {key} must be a whole number {low}..{high}, got {value!r}")
     if card.get("sha256") and card["sha256"] != digest:
         raise CheckpointError(f"{path}: sha256 {digest[:12]}... does not match its model card {cp.name}")
     return card
@@ -182,7 +190,8 @@ def load_weights(path: Path | str | None = None) -> LoadedWeights:
     path = Path(path) if path is not None else DEFAULT_WEIGHTS
     if not path.is_file():
         hint = " (the default model is missing from this installation)" if path == DEFAULT_WEIGHTS else ""
-        raise CheckpointError(f"{path}: no such checkpoint file{hint}")
+        what = "a folder, not a checkpoint file" if path.is_dir() else "no such checkpoint file"
+        raise CheckpointError(f"{path}: {what}{hint}")
     digest = sha256_file(path)
     card: dict[str, Any] = {}
     if path.suffix == ".safetensors":

@@ -231,10 +231,13 @@ class ClusterRunner:
         self.address = address
         self.timeout = cluster_timeout() if timeout is None else timeout
         try:
-            from distributed.comm.addressing import parse_address
+            from distributed.comm.addressing import get_address_host_port, parse_address
             from distributed.comm.registry import get_backend
 
-            get_backend(parse_address(address)[0])
+            scheme = parse_address(address)[0]
+            get_backend(scheme)
+            if scheme != "inproc":  # a network address needs its port: Client() half-made by a bad one hangs at exit
+                get_address_host_port(address)
         except (ValueError, TypeError) as exc:
             raise ColonlightError(
                 f"{address!r} is not a Dask scheduler address such as tcp://HOST:8786 ({_one_line(exc)})"

@@ -18,7 +18,8 @@ the block:
   change says nothing about overlays.
 
 The first block decides the area before any frame goes to the method (the stream holds up to ``DETECT_FRAMES``
-frames back once, at the start); every later block is a candidate, adopted only when ``CHANGE_BLOCKS``
+frames back once, at the start; a live stream, which cannot wait, decides on its first frame alone,
+:func:`live_content_stream`); every later block is a candidate, adopted only when ``CHANGE_BLOCKS``
 consecutive candidates agree with each other and differ from the current area (hysteresis: a dark moment does
 not shrink the field of view). The method gets the content's bounding box with the other pixels filled with the
 content's mean colour; its output is pasted back at content pixels only.
@@ -64,6 +65,10 @@ TEXT_CONTRAST = 60
 SATURATED = 250
 #: Frames per detection block, and agreeing blocks needed to change the area.
 DETECT_FRAMES = 18
+#: Frames a live stream's first decision takes (no frame is held back): a one-frame block finds a border as
+#: often as an 18-frame one (all 128 discs drawn on validation clips, seeds 720128-255; session 26), and later
+#: blocks of ``DETECT_FRAMES`` correct it. Seen whole, a disc border drove the shipped network to gamma 0.12.
+LIVE_FIRST_FRAMES = 1
 CHANGE_BLOCKS = 2
 #: Areas whose fields of view overlap this much (IoU) and whose overlays differ by at most ``OVERLAY_SLACK`` of
 #: their pixels (or 16 pixels) are the same area.
@@ -294,11 +299,24 @@ class ContentStream(MethodStream):
     """Any method's stream, shown only the content area (see the module docstring); a frame without a border
     or overlays goes to the method untouched, so its result is exactly the method's own."""
 
-    def __init__(self, inner: MethodStream, detect_frames: int = DETECT_FRAMES) -> None:
-        if detect_frames < 1:
-            raise OptionError(f"detect_frames must be >= 1, got {detect_frames}")
+    def __init__(
+        self,
+        inner: MethodStream,
+        detect_frames: int = DETECT_FRAMES,
+        *,
+        first_frames: int | None = None,
+        resize: Literal["refuse", "redetect"] = "refuse",
+    ) -> None:
+        """``first_frames``: frames held back for the first decision (default ``detect_frames``). ``resize``: a
+        frame of another size is refused (a clip has one size), or starts a new detection (a live source may
+        reconnect at another size; the method's own stream, and its state, go on)."""
+        first_frames = detect_frames if first_frames is None else first_frames
+        if detect_frames < 1 or first_frames < 1:
+            raise OptionError(f"detect_frames and first_frames must be >= 1, got {detect_frames}, {first_frames}")
         self._inner = inner
         self._detect_frames = detect_frames
+        self._first_frames = first_frames
+        self._resize = resize
         self._stats = BlockStats()
         self._placement: _Placement | None = None  # None until the first block is seen; then per area
         self._warmup: list[np.ndarray] = []
@@ -306,6 +324,7 @@ class ContentStream(MethodStream):
         self._candidate: ContentArea | None = None
         self._agreeing = 0
         self._announce: dict[str, Any] | None = None  # the area change recorded with the next frame
+        self._placed = False  # an area has been in use (a new frame size then records the area it finds)
 
     @property
     def area(self) -> ContentArea | None:
@@ -316,14 +335,17 @@ class ContentStream(MethodStream):
         check_frame(frame)
         shape = (self._warmup[0] if self._warmup else self._placement.area.fov if self._placement else frame).shape
         if frame.shape[:2] != shape[:2]:
-            raise FrameShapeError(
-                f"frame is {frame.shape[1]}x{frame.shape[0]}, the stream started at "
-                f"{shape[1]}x{shape[0]}: start a new stream for a new frame size"
-            )
+            if self._resize == "refuse" or self._warmup:
+                raise FrameShapeError(
+                    f"frame is {frame.shape[1]}x{frame.shape[0]}, the stream started at "
+                    f"{shape[1]}x{shape[0]}: start a new stream for a new frame size"
+                )
+            # another picture layout: find its area afresh (frames in flight keep their own placement)
+            self._stats, self._placement, self._candidate, self._agreeing = BlockStats(), None, None, 0
         self._stats.add(frame)
         if self._placement is None:
             self._warmup.append(frame)
-            if self._stats.count < self._detect_frames:
+            if self._stats.count < self._first_frames:
                 return []
             self._start()
             return self._drain_warmup()
@@ -354,10 +376,10 @@ class ContentStream(MethodStream):
         return results
 
     def _use(self, area: ContentArea) -> None:
-        previous = self._placement
-        self._placement = _Placement(area)
-        if previous is not None or not area.is_full:
+        # recorded when it changes the area in use, or when the first area is not the whole frame
+        if self._placed or not area.is_full:
             self._announce = area.summary()
+        self._placement, self._placed = _Placement(area), True
 
     def _consider(self, candidate: ContentArea) -> None:
         """Hysteresis: change the area only after ``CHANGE_BLOCKS`` agreeing candidates that differ from it."""
@@ -400,6 +422,15 @@ def content_stream(method: Method, mode: str = DEFAULT_CONTENT) -> MethodStream:
     return ContentStream(inner) if parse_content_mode(mode) == "auto" else inner
 
 
+def live_content_stream(method: Method, mode: str = DEFAULT_CONTENT) -> MethodStream:
+    """:func:`content_stream` for a live source (``colonlight stream``, the service's WebSocket): the first area
+    is found on the first frame, so no frame waits, and a change of frame size finds the area again."""
+    inner = method.stream()
+    if parse_content_mode(mode) == "full":
+        return inner
+    return ContentStream(inner, first_frames=LIVE_FIRST_FRAMES, resize="redetect")
+
+
 __all__ = [
     "CONTENT_MODES",
     "DEFAULT_CONTENT",
@@ -407,6 +438,7 @@ __all__ = [
     "ContentMode",
     "ContentStream",
     "content_stream",
+    "live_content_stream",
     "detect_area",
     "detect_fov",
     "detect_overlay",

@@ -68,6 +68,12 @@ VIDEO_SUFFIXES = frozenset(
 _NOT_VIDEO_FORMATS = frozenset({"image2", "tty", "bin", "xbin", "idf", "adf", "apng", "gif"})
 
 
+def is_still_format(fmt: str) -> bool:
+    """Whether FFmpeg's demuxer ``fmt`` reads a still image, an animation or text, not a video (a file of it is
+    refused by name, by ``enhance``, the service and ``stream`` alike)."""
+    return fmt in _NOT_VIDEO_FORMATS or fmt.endswith("_pipe")
+
+
 @dataclass(frozen=True)
 class VideoInfo:
     """What :func:`probe_video` learnt. Sizes are upright (rotation applied); rates, durations advisory."""
@@ -193,7 +199,7 @@ def _open_container(path: Path, options: dict[str, str]) -> tuple[Any, Any]:
         raise _error(path, _cause(exc, opening=True)) from exc
     try:
         fmt = container.format.name
-        if fmt in _NOT_VIDEO_FORMATS or fmt.endswith("_pipe"):
+        if is_still_format(fmt):
             raise _error(path, f"not a video: the content is a still image, animation or text ({fmt})")
         attached = av.stream.Disposition.attached_pic  # cover art of an audio file
         candidates = [s for s in container.streams.video if not s.disposition & attached]
@@ -225,6 +231,10 @@ def _header_size(path: Path, cap: int) -> tuple[int, int]:
         return _check_size(path, stream, cap)
 
 
+#: The largest ``max_pixels`` libavcodec takes (INT_MAX); a frame of more pixels cannot be decoded at all.
+_LIBAV_MAX_PIXELS = 2**31 - 1
+
+
 def _open(path: Path, max_pixels: int | None = None) -> tuple[Any, Any]:
     """Open ``path`` for decoding and pick its main video stream; InputError if it is not a video.
 
@@ -236,10 +246,12 @@ def _open(path: Path, max_pixels: int | None = None) -> tuple[Any, Any]:
     _check_file(path)
     cap = max_pixels_setting() if max_pixels is None else int(max_pixels)
     _header_size(path, cap)
-    container, stream = _open_container(path, {"max_pixels": str(cap)})
+    # libavcodec's max_pixels is an int option of 0..INT_MAX: a larger value is refused, and every frame with it
+    libav_cap = str(min(cap, _LIBAV_MAX_PIXELS))
+    container, stream = _open_container(path, {"max_pixels": libav_cap})
     try:
         _check_size(path, stream, cap)
-        stream.codec_context.options = {"max_pixels": str(cap)}
+        stream.codec_context.options = {"max_pixels": libav_cap}
         stream.codec_context.thread_type = "AUTO"  # frame + slice threads: ~1.5x faster on HD
     except BaseException:
         container.close()

@@ -22,7 +22,7 @@ import os
 import stat
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 from .frames import IMAGE_SUFFIXES, is_image_folder
 from .jobs import ClipJob
@@ -259,20 +259,26 @@ def _unique_names(found: Sequence[tuple[Path, Path, str | None]]) -> Iterator[tu
     overwrite each other. A file found twice (named twice, or also inside a given folder) is one clip under its
     own name; names shared by different files get the suffix (``p7-mp4``, ``p7-avi``), then, where that is
     not enough (``a/p7.mp4`` and ``b/p7.mp4``, ``p7.mp4`` and ``p7.MP4``, ``p7.mp4`` beside ``p7-mp4.mov``),
-    a number (``p7-mp4-2``); a name that needs neither is never taken by another clip."""
+    a number (``p7-mp4-2``); a name that needs neither is never taken by another clip.
+
+    Nor is a clip's folder ever inside another's: ``a.mp4`` beside a folder ``a/`` holding ``frames.mp4`` would
+    put ``a/frames/`` (a clip) in ``a/`` (a clip, whose own frames go to ``a/frames/``), and clearing one clip's
+    temporaries would delete the other's as it writes them; the outer one takes its suffix (``a-mp4``)."""
     # realpath, unlike Path.resolve, never raises on a link loop
     clips = [(src, rel.as_posix(), problem, os.path.realpath(src)) for src, rel, problem in found]
     sources: dict[str, set[str]] = {}
     for _, rel, _, real in clips:
         sources.setdefault(rel, set()).add(real)
-    taken = {rel for rel, reals in sources.items() if len(reals) == 1}  # kept as they are
+    # the folders that hold another clip's folder: no clip may be written there
+    holders = {parent.as_posix() for rel in sources for parent in PurePosixPath(rel).parents}
+    taken = holders | {rel for rel, reals in sources.items() if len(reals) == 1}  # kept as they are
     seen: set[tuple[str, str]] = set()
     for src, rel, problem, real in clips:
         if (real, rel) in seen:
             continue
         seen.add((real, rel))
         name = rel
-        if len(sources[rel]) > 1:
+        if len(sources[rel]) > 1 or rel in holders:
             if src.suffix or synthetic_folder_of(src):
                 name = f"{rel}-{'synth' if synthetic_folder_of(src) else src.suffix.lstrip('.').lower()}"
             base, n = name, 1

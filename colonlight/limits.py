@@ -18,6 +18,9 @@ from typing import Final
 DEFAULT_MAX_PIXELS = 4096 * 4096
 #: Highest extraction rate accepted (frames per second of output); 0 means "every source frame".
 MAX_FPS = 240.0
+#: Lowest extraction rate above 0 accepted: frame rates are exact ratios with a denominator of at most 1001
+#: (NTSC), so a lower one would round to 0 frames per second.
+MIN_FPS = 1 / 1001
 #: Environment variable that overrides :data:`DEFAULT_MAX_PIXELS` in the CLI and the service alike.
 MAX_PIXELS_ENV = "COLONLIGHT_MAX_PIXELS"
 #: Most copies of one source frame that the fps conversion may add for a timestamp gap (the frame repeated

@@ -7,6 +7,7 @@ lumen, which moves). Luminance is Rec. 601 luma in [0, 1].
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -109,6 +110,13 @@ class ClipLighting:
         return 1.0 - self.flicker_out / self.flicker_in if self.flicker_in > 0 else 0.0
 
 
+def _mean_of_defined(values: Sequence[float] | np.ndarray) -> float:
+    """The mean of the values that are not NaN, or NaN when none is (a clip without content pixels, e.g. all
+    black): ``np.nanmean`` gives the same, with a RuntimeWarning the user would see."""
+    array = np.asarray(values, dtype=np.float64)
+    return math.nan if np.isnan(array).all() else float(np.nanmean(array))
+
+
 def clip_lighting(
     inputs: Sequence[np.ndarray],
     outputs: Sequence[np.ndarray],
@@ -127,20 +135,18 @@ def clip_lighting(
     p_in = p_out = None
     if clean is not None:
         p_in = psnr_from_mse(
-            float(
-                np.nanmean([mse(i, c, m) for i, c, m in zip(inputs[skip:], clean[skip:], masks[skip:], strict=False)])
-            )
+            _mean_of_defined([mse(i, c, m) for i, c, m in zip(inputs[skip:], clean[skip:], masks[skip:], strict=False)])
         )
         p_out = psnr_from_mse(
-            float(
-                np.nanmean([mse(o, c, m) for o, c, m in zip(outputs[skip:], clean[skip:], masks[skip:], strict=False)])
+            _mean_of_defined(
+                [mse(o, c, m) for o, c, m in zip(outputs[skip:], clean[skip:], masks[skip:], strict=False)]
             )
         )
     return ClipLighting(
         flicker_in=flicker(inputs, masks),
         flicker_out=flicker(outputs, masks),
-        mean_luma_in=float(np.nanmean(lin)),
-        mean_luma_out=float(np.nanmean(lout)),
+        mean_luma_in=_mean_of_defined(lin),
+        mean_luma_out=_mean_of_defined(lout),
         psnr_in=p_in,
         psnr_out=p_out,
     )

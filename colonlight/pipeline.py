@@ -44,6 +44,7 @@ from .limits import (
     DEFAULT_JPEG_QUALITY,
     MAX_FPS,
     MAX_JPEG_QUALITY,
+    MIN_FPS,
     MIN_JPEG_QUALITY,
     max_gap_frames_setting,
     max_pixels_setting,
@@ -123,8 +124,8 @@ class ClipOptions:
             raise OptionError(f"format must be png or jpg, got {self.format!r}")
         if not MIN_JPEG_QUALITY <= self.quality <= MAX_JPEG_QUALITY:
             raise OptionError(f"quality must be within {MIN_JPEG_QUALITY}..{MAX_JPEG_QUALITY}, got {self.quality}")
-        if self.fps is not None and not 0 <= self.fps <= MAX_FPS:
-            raise OptionError(f"fps must be within 0..{MAX_FPS:g}, got {self.fps:g}")
+        if self.fps is not None and not (0 <= self.fps <= MAX_FPS and (self.fps == 0 or self.fps >= MIN_FPS)):
+            raise OptionError(f"fps must be 0 or within 1/1001..{MAX_FPS:g}, got {self.fps:g}")
         if self.max_pixels < 1:
             raise OptionError(f"max_pixels must be >= 1, got {self.max_pixels}")
         if self.max_gap_frames < 1:
@@ -479,10 +480,12 @@ def _source_rate(head: list[DecodedFrame]) -> float:
     return 1.0 / dt if dt > 0 else DEFAULT_FPS
 
 
-def iter_enhanced(frames: Iterator[np.ndarray], method: Method) -> Iterator[FrameResult]:
+def iter_enhanced(
+    frames: Iterator[np.ndarray], method: Method, content: str = DEFAULT_CONTENT
+) -> Iterator[FrameResult]:
     """Library convenience: enhance an iterable of RGB uint8 frames in order, yielding results as they are ready
     (:func:`colonlight.streaming.enhance_frames`, kept under this name)."""
-    return enhance_frames(frames, method)
+    return enhance_frames(frames, method, content=content)
 
 
 __all__ = [

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from .content import DEFAULT_CONTENT, content_stream
 from .errors import FrameShapeError
 from .limits import DEFAULT_METHOD
 from .methods import FrameResult, Method, create_method
@@ -20,18 +21,26 @@ from .methods.base import check_frame
 
 
 def enhance_frames(
-    frames: Iterable[np.ndarray], method: Method | str = DEFAULT_METHOD, **options: Any
+    frames: Iterable[np.ndarray],
+    method: Method | str = DEFAULT_METHOD,
+    *,
+    content: str = DEFAULT_CONTENT,
+    **options: Any,
 ) -> Iterator[FrameResult]:
     """Yield one :class:`FrameResult` per frame of ``frames`` (``(H, W, 3)`` uint8 RGB, in clip order), in order.
 
     ``method``: a :class:`Method` (built once, reused across clips), or a method's name, built here with
     ``options`` (``create_method(name, **options)``). Each call is one clip: a fresh stream, state from zero.
+    ``content``: ``auto`` (the default, as ``colonlight enhance``'s) shows the method only the field of view
+    inside a black border, less fixed text, and returns those pixels unchanged (:mod:`colonlight.content`; the
+    first frames wait for the area to be found); ``full``: the whole frame. Seen whole, a scope's round border
+    drove the shipped network to its brightest (session 26).
     """
     if isinstance(method, str):
         method = create_method(method, **options)
     elif options:
         raise TypeError("options go with a method's name; a built Method already has its own")
-    stream = method.stream()
+    stream = content_stream(method, content)
     for index, frame in enumerate(frames):
         _check(frame, index)
         yield from stream.push(frame)

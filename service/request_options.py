@@ -9,6 +9,7 @@ settings, not request options.
 
 from __future__ import annotations
 
+import math
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, create_model, field_validator
@@ -23,6 +24,7 @@ from colonlight.limits import (
     DEFAULT_METHOD,
     MAX_FPS,
     MAX_JPEG_QUALITY,
+    MIN_FPS,
     MIN_JPEG_QUALITY,
 )
 from colonlight.methods.options import method_kwargs, option, request_options
@@ -59,6 +61,7 @@ class _ClipOptions(BaseModel):
         None,
         ge=0,
         le=int(MAX_FPS),
+        allow_inf_nan=False,
         description=f"Extraction rate; 0 keeps every frame (default: the server's, {DEFAULT_FPS:g}).",
     )
     method: str | None = Field(None, description=f"Enhancement method (default: the server's, {DEFAULT_METHOD}).")
@@ -75,6 +78,15 @@ class _ClipOptions(BaseModel):
     @classmethod
     def _blank_is_unset(cls, value: Any) -> Any:
         return None if isinstance(value, str) and value.strip() == "" else value
+
+    @field_validator("fps")
+    @classmethod
+    def _usable_fps(cls, value: float | None) -> float | None:
+        # NaN and infinities are not rates; a positive rate under 1/1001 rounds to 0 frames per second (the CLI's
+        # check_fps refuses both too): refused here, not accepted and then failed as a job
+        if value is not None and (not math.isfinite(value) or 0 < value < MIN_FPS):
+            raise ValueError(f"must be 0 (every frame) or a rate within 1/1001..{MAX_FPS:g}, got {value!r}")
+        return value
 
     @field_validator("method")
     @classmethod

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
 import anyio
-from python_multipart.exceptions import MultipartParseError
+from python_multipart.exceptions import FormParserError, MultipartParseError
 from python_multipart.multipart import MultipartParser, MultipartState, parse_options_header
 from starlette.requests import ClientDisconnect, Request
 
@@ -219,7 +219,10 @@ async def receive_upload(
     if declared is not None and declared.isdigit() and int(declared) > max_bytes + _MULTIPART_OVERHEAD:
         raise too_large(max_bytes)
     collector = _Collector()
-    parser = MultipartParser(boundary, collector.callbacks())
+    try:
+        parser = MultipartParser(boundary, collector.callbacks())
+    except FormParserError as exc:  # e.g. a boundary over python-multipart's 256 bytes: the client's fault, not a 500
+        raise ApiError(400, "bad_request", f"malformed multipart/form-data header: {str(exc)[:200]}", CLOSE) from None
     size = 0
     fh: IO[bytes] | None = None
     try:

@@ -30,6 +30,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ..content import DEFAULT_CONTENT, content_stream, parse_content_mode
 from ..errors import ColonlightError, OptionError
 from ..limits import DEFAULT_FPS
 from ..methods import Method, available_methods, create_method
@@ -191,14 +192,17 @@ def _clip_error(source: str, exc: Exception) -> str:
     return f"{source}: cannot evaluate: {type(exc).__name__}: {exc}".splitlines()[0]
 
 
-def _run_method(method: Method, frames: list[np.ndarray]) -> tuple[list[np.ndarray], list[float | None], float, float]:
-    """Enhanced frames, per-frame gammas, and wall and CPU milliseconds per frame (the method alone, no I/O).
+def _run_method(
+    method: Method, frames: list[np.ndarray], content: str = DEFAULT_CONTENT
+) -> tuple[list[np.ndarray], list[float | None], float, float]:
+    """Enhanced frames, per-frame gammas, and wall and CPU milliseconds per frame (the method alone, no I/O), shown
+    the ``content`` area as ``colonlight enhance`` shows it (so a clip's scores are those of what it writes).
 
     CPU time (this process, all its threads) is kept beside wall time because on a shared machine wall time
     also counts other jobs' load."""
     out: list[np.ndarray] = []
     gammas: list[float | None] = []
-    stream = method.stream()
+    stream = content_stream(method, content)
     c0, t0 = time.process_time(), time.perf_counter()
     for f in frames:
         for r in stream.push(f):
@@ -306,13 +310,15 @@ def evaluate_clip(
     keep_strip: bool = False,
     progress: Progress | None = None,
     cache: ResultCache | None = None,
+    content: str = DEFAULT_CONTENT,
 ) -> tuple[ClipRecord, dict[str, list[np.ndarray]]]:
     """Score every method on one loaded clip; returns its record and (if ``keep_strip``) frame thumbnails.
 
     ``brightness``: the tracker's brightness settings to track in (``tracker_settings.brightness`` is replaced
     by each). ``oracles``: when the clip has clean frames, add the reference rows (clean and the three oracles)
     before the methods and the breakdown of the input's failures. ``cache``: reuse tracking and
-    COLMAP results of byte-identical frames (see :mod:`.cache`)."""
+    COLMAP results of byte-identical frames (see :mod:`.cache`). ``content``: what the methods see
+    (:mod:`colonlight.content`; ``auto``, as ``colonlight enhance``, or ``full``)."""
     modes = _modes(brightness)
     masks = content_masks(clip.frames)
     kind, corrs = _correspondences(clip)
@@ -346,7 +352,7 @@ def evaluate_clip(
             progress("method", {"clip": clip.name, "method": label, "error": record.results[label].error})
     for spec, method in methods:
         try:
-            out, gammas, ms, cpu_ms = _run_method(method, clip.frames)
+            out, gammas, ms, cpu_ms = _run_method(method, clip.frames, content)
             record.results[spec.label] = _score(ctx, spec.label, out, gammas, ms, cpu_ms)
             if keep_strip and spec.name != INPUT_NAME:  # the input's row already shows it
                 strips[spec.label] = [_thumb(out[i]) for i in idx]
@@ -434,6 +440,7 @@ def evaluate_clips(
     threads: int | None = 1,
     progress: Progress | None = None,
     cache_dir: Path | None = None,
+    content: str = DEFAULT_CONTENT,
 ) -> EvaluationResult:
     """Evaluate ``methods`` on ``clips`` (loaded one at a time); see the module docstring.
 
@@ -441,7 +448,9 @@ def evaluate_clips(
     (another method added, an interrupted run finished) computes only what is new.
     ``strips``: how many clips keep before/after thumbnails for the report. ``tracker_settings``: a
     :class:`colonlight.evaluation.tracker.TrackerSettings` (default thresholds when ``None``); ``brightness``:
-    the settings tracked in (``"both"``, or any of ``fixed``/``affine``). ``oracles``: reference rows (clean and
+    the settings tracked in (``"both"``, or any of ``fixed``/``affine``). ``content``: what the methods see
+    (``auto``, the default as in ``colonlight enhance``: the field of view inside a black border, less fixed text;
+    ``full``). ``oracles``: reference rows (clean and
     the three oracles) on clips with clean frames; without any such clip they are listed as skipped with the
     reason. ``threads``:
     torch and OpenCV threads while evaluating (restored afterwards; ``None`` leaves them). One by default, so
@@ -453,7 +462,7 @@ def evaluate_clips(
             clips, methods, colmap=colmap, tracker=tracker, max_size=max_size, fps=fps, max_frames=max_frames,
             colmap_settings=colmap_settings, tracker_settings=tracker_settings, brightness=_modes(brightness),
             oracles=oracles, strips=strips, threads=threads, progress=progress,
-            cache=ResultCache(cache_dir) if cache_dir is not None else None,
+            cache=ResultCache(cache_dir) if cache_dir is not None else None, content=parse_content_mode(content),
         )  # fmt: skip
 
 
@@ -517,6 +526,7 @@ def _evaluate_clips(
     threads: int | None,
     progress: Progress | None,
     cache: ResultCache | None,
+    content: str,
 ) -> EvaluationResult:
     t0 = time.perf_counter()
     colmap_settings = colmap_settings or ColmapSettings()
@@ -533,6 +543,7 @@ def _evaluate_clips(
         "tracker": {k: v for k, v in asdict(tracker_settings).items() if k != "brightness"} if tracker else None,
         "brightness": list(brightness) if tracker else [],
         "oracles": oracles,
+        "content": content,
         "dark_threshold": 0.1,
         "bright_threshold": 0.95,
     }
@@ -564,6 +575,7 @@ def _evaluate_clips(
                 keep_strip=keep,
                 progress=progress,
                 cache=cache,
+                content=content,
             )
         except Exception as exc:  # noqa: BLE001 - a clip that cannot be scored fails alone, the others go on
             error = _clip_error(source, exc)

@@ -9,6 +9,7 @@ line per frame and flushes it.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -71,7 +72,10 @@ class Y4mPipe:
                 "XYSCSS=420JPEG XCOLORRANGE=LIMITED\n"
             ).encode("ascii")
         elif self.size != (w, h):
-            raise InputError(f"frame {index} is {w}x{h} but the y4m stream started at {self.size[0]}x{self.size[1]}")
+            raise InputError(
+                f"the frame size changed to {w}x{h} at frame {index}, but the y4m stream started at "
+                f"{self.size[0]}x{self.size[1]} and cannot change size"
+            )
         yuv = cv2.cvtColor(np.ascontiguousarray(frame), cv2.COLOR_RGB2YUV_I420)
         try:
             self.fh.write(header + b"FRAME\n")
@@ -120,7 +124,8 @@ class MpegTsPipe:
             self._open(w, h)
         elif self.size is not None and self.size != (w, h):
             raise InputError(
-                f"frame {index} is {w}x{h} but the MPEG-TS stream started at {self.size[0]}x{self.size[1]}"
+                f"the frame size changed to {w}x{h} at frame {index}, but the MPEG-TS stream started at "
+                f"{self.size[0]}x{self.size[1]} and cannot change size"
             )
         vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")
         vf.pts = index
@@ -135,12 +140,16 @@ class MpegTsPipe:
     def close(self) -> None:
         if self._container is None:
             return
+        import av
+
         try:
             for packet in self._stream.encode():
                 self._container.mux(packet)
             self._container.close()
             self.fh.flush()
-        except (BrokenPipeError, ConnectionResetError, ValueError, OSError):
+        except (BrokenPipeError, ConnectionResetError, ValueError, OSError, av.error.FFmpegError):
+            # every frame was flushed as it was written (a failure then was reported); what the writer still
+            # holds fails here in PyAV's write callback (a full device, a reader gone): not reported twice
             pass
         self._container = None
 
@@ -167,13 +176,18 @@ class FrameFolder:
         self._pool = ThreadPoolExecutor(max_workers=WRITERS, thread_name_prefix="colonlight-live-write")
         self._pending: deque[tuple[Future[Path], Path]] = deque()
         self._published: deque[Path] = deque()
+        self._failed = False
 
     def _encode(self, dest: Path, frame: np.ndarray) -> Path:
         return write_temporary(dest, encode_image(frame, self.fmt, self.quality))
 
     def _publish_oldest(self) -> None:
         fut, dest = self._pending.popleft()
-        publish(fut.result(), dest)
+        try:
+            publish(fut.result(), dest)
+        except BaseException:
+            self._failed = True  # the frames after a lost one are not published: no gap in the folder
+            raise
         self._published.append(dest)
         while self.keep and len(self._published) > self.keep:
             self._published.popleft().unlink(missing_ok=True)
@@ -186,7 +200,7 @@ class FrameFolder:
 
     def close(self) -> None:
         try:
-            while self._pending:
+            while self._pending and not self._failed:
                 self._publish_oldest()
         finally:
             for fut, _ in self._pending:  # after a failure: nothing half-written stays behind
@@ -204,11 +218,27 @@ class GammaLog:
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = open(self.path, "w", encoding="utf-8")  # noqa: SIM115 - held open for the stream's life
+        # unbuffered: each line goes to the file as it is written (as a flush per line would), and a line that
+        # cannot be written in full (a full disk) is cut off again, so that the log holds whole records only
+        self._fh = open(self.path, "wb", buffering=0)  # noqa: SIM115 - held open for the stream's life
+        self._size = 0
 
     def write(self, record: dict[str, Any]) -> None:
-        self._fh.write(json.dumps(record, ensure_ascii=False, separators=(",", ":")) + "\n")
-        self._fh.flush()
+        text = json.dumps(record, ensure_ascii=False, separators=(",", ":")) + "\n"
+        line = text.encode("utf-8", "backslashreplace")
+        view = memoryview(line)
+        try:
+            while view:
+                written = self._fh.write(view)
+                if not written:
+                    raise OSError(errno.EIO, "the file took no bytes")
+                view = view[written:]
+        except OSError:
+            with contextlib.suppress(OSError):
+                self._fh.truncate(self._size)
+                self._fh.seek(self._size)
+            raise
+        self._size += len(line)
 
     def close(self) -> None:
         self._fh.close()

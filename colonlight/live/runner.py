@@ -9,6 +9,7 @@ finished, the outputs are closed complete, and the summary is made.
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections import deque
@@ -20,6 +21,7 @@ from typing import Any, BinaryIO
 
 from .. import __version__
 from ..atomic import write_json_atomic
+from ..content import DEFAULT_CONTENT, live_content_stream, parse_content_mode
 from ..errors import ColonlightError, InputError, OptionError
 from ..limits import DEFAULT_FPS, DEFAULT_JPEG_QUALITY
 from ..methods.base import FrameResult, Method
@@ -49,6 +51,7 @@ class StreamOptions:
     reconnect: bool = False
     timeout_s: float = DEFAULT_TIMEOUT_S
     duration_s: float | None = None  # stop after this many seconds
+    content: str = DEFAULT_CONTENT  # auto: the method sees the field of view less fixed text (colonlight.content)
 
     def drop_policy(self, spec: SourceSpec) -> str:
         if self.drop != "auto":
@@ -62,6 +65,7 @@ class StreamOptions:
             raise OptionError(f"buffer must be >= 1, got {self.buffer}")
         if self.timeout_s <= 0:
             raise OptionError(f"timeout must be > 0, got {self.timeout_s}")
+        parse_content_mode(self.content)
 
 
 @dataclass(frozen=True)
@@ -82,6 +86,10 @@ def prepare_output_dir(out_dir: Path, overwrite: bool) -> None:
     """Refuse to mix two streams in one folder: InputError if OUT holds a stream's outputs, unless ``overwrite``
     (then the old log, summary and frames go)."""
     out_dir = Path(out_dir)
+    existing = next((p for p in (out_dir, *out_dir.parents) if os.path.lexists(p)), None)
+    if existing is not None and not existing.is_dir():  # found now, not as a traceback at the first frame
+        what = "is" if existing == out_dir else f"lies under {existing}, which is"
+        raise InputError(f"{out_dir}: {what} a file, not a folder (--output names a folder)")
     frames = out_dir / FRAMES_DIR
     old = [p for p in (out_dir / LOG_FILE, out_dir / SUMMARY_FILE) if p.exists()]
     old_frames = [p for p in frames.iterdir() if p.name.partition(".")[0].isdigit()] if frames.is_dir() else []
@@ -129,6 +137,8 @@ class LiveStream:
         )
         self.on_frame = on_frame
         self._outputs: list[FrameOutput] = []
+        self._names: dict[int, str] = {}  # id(output) -> how an error line names it
+        self._where = ""  # the output being opened (for an error line)
         self._log: GammaLog | None = None
         self._opened = False
 
@@ -142,20 +152,36 @@ class LiveStream:
     def _open_outputs(self) -> None:
         self._opened = True
         plan = self.plan
-        if plan.out_dir is not None:
-            plan.out_dir.mkdir(parents=True, exist_ok=True)
-            if plan.frames:
-                self._outputs.append(FrameFolder(plan.out_dir / FRAMES_DIR, plan.format, plan.quality, plan.keep))
-            self._log = GammaLog(plan.out_dir / LOG_FILE)
+        # The pipe goes first: it is the output that may refuse a frame (a y4m or H.264 stream cannot change
+        # size), and a refused frame must not reach the frame folder either (no frame without its log line).
         if plan.pipe is not None and plan.pipe_file is not None:
             rate = Fraction(self.opts.fps).limit_denominator(1001) if self.opts.fps else (self.reader.source_rate or 30)
-            self._outputs.append(open_pipe(plan.pipe, plan.pipe_file, Fraction(rate)))
+            pipe = open_pipe(plan.pipe, plan.pipe_file, Fraction(rate))
+            self._outputs.append(pipe)
+            self._names[id(pipe)] = f"standard output (--pipe {plan.pipe})"
+        if plan.out_dir is not None:
+            self._where = str(plan.out_dir)
+            plan.out_dir.mkdir(parents=True, exist_ok=True)
+            if plan.frames:
+                folder = FrameFolder(plan.out_dir / FRAMES_DIR, plan.format, plan.quality, plan.keep)
+                self._outputs.append(folder)
+                self._names[id(folder)] = str(plan.out_dir / FRAMES_DIR)
+            self._where = str(plan.out_dir / LOG_FILE)
+            self._log = GammaLog(plan.out_dir / LOG_FILE)
+        self._where = ""
+
+    def _write_error(self, where: str, exc: OSError) -> ColonlightError:
+        """One line for an output that cannot be written (a full disk, a folder gone, a closed descriptor)."""
+        cause = exc.strerror or str(exc) or type(exc).__name__
+        return ColonlightError(f"{where}: cannot write ({cause}); what was written before is complete")
 
     def _close_outputs(self) -> None:
         first_error: BaseException | None = None
         for out in self._outputs:
             try:
                 out.close()
+            except OSError as exc:
+                first_error = first_error or self._write_error(self._names.get(id(out), "an output"), exc)
             except Exception as exc:  # noqa: BLE001 - close the others, report the first
                 first_error = first_error or exc
         if self._log is not None:
@@ -169,7 +195,8 @@ class LiveStream:
         """Read, enhance and write until the source ends, :meth:`stop` is called or the duration is reached."""
         t0 = time.perf_counter()
         thread = threading.Thread(target=self.reader.run, name="colonlight-live-read", daemon=True)
-        stream = self.method.stream()  # one recurrent state for the whole stream, reconnects included
+        # one recurrent state for the whole stream, reconnects included; the content area found on the first frame
+        stream = live_content_stream(self.method, self.opts.content)
         waiting: deque[LiveFrame] = deque()
         last_progress = 0.0
         ended_by_source = False
@@ -220,7 +247,11 @@ class LiveStream:
             self.summary.frames_dropped = max(self.handoff.dropped, self.summary.frames_in - self.summary.frames_out)
             self.summary.take_latency(self.latency)
             if self.plan.out_dir is not None and self._opened:
-                write_json_atomic(self.plan.out_dir / SUMMARY_FILE, self.record())
+                try:
+                    write_json_atomic(self.plan.out_dir / SUMMARY_FILE, self.record())  # whole or not at all
+                except OSError as exc:
+                    error = self._write_error(str(self.plan.out_dir / SUMMARY_FILE), exc)
+                    self.summary.error = self.summary.error or str(error)
         return self.summary
 
     def _count_drops(self) -> None:
@@ -230,9 +261,17 @@ class LiveStream:
         for res in results:
             f = waiting.popleft()
             if not self._opened:
-                self._open_outputs()
+                try:
+                    self._open_outputs()
+                except OSError as exc:  # e.g. a read-only or full file system
+                    raise self._write_error(self._where or "an output", exc) from exc
             for out in self._outputs:
-                out.write(f.index, res.frame)
+                try:
+                    out.write(f.index, res.frame)
+                except InputError as exc:  # a pipe that cannot take this frame (its size changed)
+                    raise InputError(f"{self.spec.text}: {exc}") from exc
+                except OSError as exc:
+                    raise self._write_error(self._names.get(id(out), "an output"), exc) from exc
             done = time.perf_counter()
             latency = done - f.arrival
             self.latency.add(latency)
@@ -249,7 +288,10 @@ class LiveStream:
                 if f.connection > 1:
                     record["connection"] = f.connection
                 record.update(res.info)
-                self._log.write(record)
+                try:
+                    self._log.write(record)
+                except OSError as exc:
+                    raise self._write_error(str(self._log.path), exc) from exc
 
     def record(self) -> dict[str, Any]:
         """``stream.json``: the source, the settings and the summary."""

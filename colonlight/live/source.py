@@ -19,6 +19,7 @@ from typing import Any
 
 import av
 
+from ..decoding import is_still_format
 from ..errors import InputError
 
 #: URL schemes read as network streams (FFmpeg protocols).
@@ -183,6 +184,15 @@ def open_source(spec: SourceSpec, timeout_s: float, stop: threading.Event | None
     except (av.error.FFmpegError, OSError, ValueError, UnicodeError) as exc:
         raise InputError(f"{spec.text}: cannot open ({_cause(exc)})") from exc
     try:
+        fmt = container.format.name
+        if spec.kind == "file" and is_still_format(fmt):
+            # a still image (or a text file FFmpeg renders) would be a "stream" of one frame that ends at once: as
+            # `enhance` and the service, refused by name. Images piped on standard input (image2pipe) or served at
+            # a URL (a camera's snapshot, re-read with --reconnect) are frames arriving over time, and are read.
+            raise InputError(
+                f"{spec.text}: not a video: the content is a still image, animation or text ({fmt}); "
+                "`colonlight stream` reads a video file, a capture device, a stream URL or -"
+            )
         streams = [s for s in container.streams.video if not s.disposition & av.stream.Disposition.attached_pic]
         if not streams:
             raise InputError(f"{spec.text}: holds no video stream")

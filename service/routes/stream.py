@@ -3,10 +3,13 @@
 Protocol (version 1; every text message is a JSON object with a ``type``):
 
 * client -> ``{"type": "start", "method": "rnn", "model_size": "48", "gamma": null, "format": "jpeg",
-  "quality": 90, "frames": true, "api_key": "..."}``: optional, first; every field optional. Without it the
-  server's defaults apply from the first frame on. ``api_key`` is for browsers, which cannot set headers on a
+  "quality": 90, "frames": true, "content": "auto", "api_key": "..."}``: optional, first; every field
+  optional. Without it the server's defaults apply from the first frame on. ``content`` ``auto`` (the default)
+  shows the method only the field of view inside a black border, less fixed text, found on the first frame and
+  again after a change of frame size (``colonlight.content.live_content_stream``); its result carries
+  ``"content"`` where the area changes. ``api_key`` is for browsers, which cannot set headers on a
   WebSocket; other clients send ``X-API-Key`` or ``Authorization: Bearer`` as on every route.
-* server -> ``{"type": "ready", "method", "model", "parameters", "format", "frames", "max_pixels",
+* server -> ``{"type": "ready", "method", "model", "parameters", "format", "frames", "content", "max_pixels",
   "max_frame_bytes"}``: before the first result.
 * client -> a binary message: one frame, JPEG or PNG bytes. To give it a timestamp (or any number to match it
   by), send ``{"type": "frame", "time": 12.34}`` just before it; ``time`` is echoed in its result.
@@ -48,7 +51,7 @@ from fastapi import APIRouter, WebSocket
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
 from starlette.websockets import WebSocketDisconnect
 
-from colonlight import ColonlightError, FrameResult, MethodStream
+from colonlight import DEFAULT_CONTENT, ColonlightError, FrameResult, MethodStream, live_content_stream
 from colonlight.limits import MAX_JPEG_QUALITY, MIN_JPEG_QUALITY
 
 from ..deps import key_is_valid
@@ -81,6 +84,12 @@ class _StreamStartBase(BaseModel):
         90, ge=MIN_JPEG_QUALITY, le=MAX_JPEG_QUALITY, description="JPEG quality of the frames sent back."
     )
     frames: bool = Field(True, description="Send the enhanced frames (false: the gamma records only).")
+    content: Literal["auto", "full"] = Field(
+        DEFAULT_CONTENT,
+        description="auto: the method sees the field of view inside a black border, less fixed on-screen text, found "
+        "on the first frame (none is held back) and checked on every block of frames after; border and text "
+        "pixels are sent back unchanged. full: the whole frame.",
+    )
 
     def job_options(self) -> Any:
         """The enhancement options, validated exactly as a job's are (ValidationError): the method and the
@@ -225,7 +234,7 @@ class StreamSession:
                 CLOSE_INTERNAL, "model_unavailable", f"the model could not be loaded: {exc}", "model unavailable"
             ) from None
         self.options = options
-        self.stream = method.stream()
+        self.stream = live_content_stream(method, options.content)
         await self.send(
             {
                 "type": "ready",
@@ -234,6 +243,7 @@ class StreamSession:
                 "parameters": method.parameters(),
                 "format": options.format,
                 "frames": options.frames,
+                "content": options.content,
                 "max_pixels": self.pixel_limit,
                 "max_frame_bytes": self.settings.stream_max_frame_bytes,
             }

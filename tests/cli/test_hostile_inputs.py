@@ -64,6 +64,28 @@ def test_clips_that_share_a_name_each_get_their_own_folder(tmp_path: Path) -> No
     assert not [line for line in output.splitlines() if line.startswith("skipped")], output
 
 
+def test_no_clip_folder_is_inside_another_clips(tmp_path: Path) -> None:
+    """``a.mp4`` beside a folder ``a/`` holding ``frames.mp4`` and ``b.mp4``: the clips ``a/frames`` and ``a/b``
+    would be written inside ``a/`` (``a/frames/`` is where clip ``a`` puts its frames). The outer clip takes its
+    suffix; every clip has a folder that holds no other clip's files."""
+    videos = tmp_path / "videos"
+    make_clip(videos / "a.mp4", 10, first_index=0)
+    make_clip(videos / "a" / "frames.mp4", 10, first_index=100)
+    make_clip(videos / "a" / "b.mp4", 10, first_index=200)
+    out = tmp_path / "out"
+    code, output = enhance(str(videos), "-o", str(out), "-j", "2")
+    assert code == 0, output
+    assert sources(out) == {
+        "a-mp4": str(videos / "a.mp4"),
+        "a/frames": str(videos / "a" / "frames.mp4"),
+        "a/b": str(videos / "a" / "b.mp4"),
+    }
+    assert sorted(p.name for p in (out / "a").iterdir()) == ["b", "frames"]
+    layout = sorted(p.name for p in (out / "a-mp4").iterdir())  # one clip's folder: gammas.json, frames/, ...
+    assert "gammas.json" in layout
+    assert sorted(p.name for p in (out / "a" / "frames").iterdir()) == layout  # nothing of clip a-mp4 in it
+
+
 def test_a_file_named_twice_is_one_clip_under_its_own_name(tmp_path: Path) -> None:
     clip = make_clip(tmp_path / "videos" / "p7.mp4", 10)
     out = tmp_path / "out"

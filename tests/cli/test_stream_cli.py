@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ..media import X264, ffmpeg_exe, ffmpeg_fps_indices, make_clip, needs_ffmpeg, read_index
+from ..media import X264, ffmpeg_exe, ffmpeg_fps_indices, index_frame, make_clip, needs_ffmpeg, read_index
 
 pytestmark = needs_ffmpeg
 
@@ -483,6 +483,48 @@ def test_file_stream_matches_enhance(tmp_path: Path, live_clip: Path) -> None:
         name = f"{f['index']:06d}.jpg"
         assert (out / "frames" / name).read_bytes() == (tmp_path / "enh" / "frames" / name).read_bytes()
     assert _summary(out)["frames_dropped"] == 0
+
+
+def test_a_bordered_stream_is_enhanced_inside_its_field_of_view(tmp_path: Path) -> None:
+    """A round field of view on black (lossless FFV1, so the border is exactly 0): `stream` finds it on the first
+    frame (`--content auto`, the default), records it there, writes the border unchanged and keeps every frame;
+    `--content full` shows the method the whole frame and records no area."""
+    import cv2
+
+    w, h, n = 192, 144, 8
+    disc = np.zeros((h, w), np.uint8)
+    cv2.circle(disc, (w // 2, h // 2), 66, 1, -1)
+    raw = b"".join((index_frame(i, w, h) * disc[..., None]).tobytes() for i in range(n))
+    clip = tmp_path / "disc.mkv"
+    exe = ffmpeg_exe()
+    assert exe is not None
+    subprocess.run(
+        [exe, "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-framerate", "18"]
+        + ["-i", "-", "-c:v", "ffv1", "-pix_fmt", "bgr0", "-y", str(clip)],
+        input=raw,
+        check=True,
+        timeout=60,
+    )
+    for content in ("auto", "full"):
+        out = tmp_path / content
+        proc = subprocess.run(
+            _colonlight(str(clip), "-o", str(out), "-q", "--fps", "0", "--format", "png", "--content", content)
+            + ["--method", "gamma", "--gamma", "0.5"],
+            env=_env(),
+            capture_output=True,
+            timeout=120,
+        )
+        assert proc.returncode == 0, proc.stderr.decode()
+        records = _log(out)
+        assert len(records) == n and _summary(out)["frames_dropped"] == 0
+        assert json.loads((out / "stream.json").read_text())["options"]["content"] == content
+        frames = [cv2.imread(str(p)) for p in sorted((out / "frames").glob("*.png"))]
+        if content == "auto":
+            assert 0.4 < records[0]["content"]["fov_fraction"] < 0.9, records[0]
+            assert all("content" not in r for r in records[1:])
+            assert all(not f[disc == 0].any() for f in frames)  # the border is written unchanged
+        else:
+            assert all("content" not in r for r in records)
 
 
 def test_absent_device_and_refused_connection_are_one_line_errors(tmp_path: Path) -> None:

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+import warnings
+
 import numpy as np
 import pytest
 
@@ -61,3 +64,14 @@ def test_flicker_reduction_and_psnr() -> None:
     a, b = _clip([100])[0], _clip([110])[0]
     assert psnr(a, b, np.ones((16, 16), bool)) == pytest.approx(10 * np.log10(255**2 / 100))
     assert luma(np.full((1, 1, 3), 255, np.uint8))[0, 0] == pytest.approx(1.0, abs=1e-6)
+
+
+def test_a_clip_without_content_pixels_scores_nan_without_a_warning() -> None:
+    """An all-black clip has no content pixels: its levels and PSNR are undefined (NaN, shown as n/a), and
+    numpy's "Mean of empty slice" warning must not reach the user of ``colonlight evaluate``."""
+    frames = _clip([0] * 5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        r = clip_lighting(frames, frames, clean=frames)
+    assert math.isnan(r.mean_luma_in) and math.isnan(r.mean_luma_out)
+    assert math.isnan(r.psnr_in) and math.isnan(r.psnr_out)  # type: ignore[arg-type]

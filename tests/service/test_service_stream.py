@@ -220,6 +220,38 @@ def test_gamma_records_only(server: ServiceServer) -> None:
         assert closed_with(ws)[0] == 1000
 
 
+def test_a_bordered_picture_is_enhanced_inside_its_field_of_view(server: ServiceServer) -> None:
+    """A scope's round field of view on black: by default (``content: auto``) the server finds it on the first
+    frame, holds no frame back, records the area on that frame and sends the border back unchanged; with
+    ``content: full`` the method sees the whole frame and nothing is recorded."""
+    frames = scene(3, 320, 240)
+    disc = np.zeros((240, 320), np.uint8)
+    cv2.circle(disc, (160, 120), 112, 1, -1)
+    bordered = [f * disc[..., None] for f in frames]
+    for content in ("auto", "full"):
+        with open_stream(server) as ws:
+            start: dict[str, Any] = {"type": "start", "format": "png"}
+            if content == "full":
+                start["content"] = "full"
+            ws.send(json.dumps(start))
+            assert recv_json(ws)["content"] == content
+            records, images = [], []
+            for f in bordered:
+                ws.send(png(f))
+                records.append(recv_json(ws))  # each frame answered before the next is sent: none held back
+                image = ws.recv(60)
+                assert isinstance(image, bytes)
+                images.append(decode(image))
+            if content == "auto":
+                assert 0.5 < records[0]["content"]["fov_fraction"] < 0.9, records[0]
+                assert all("content" not in r for r in records[1:])
+                assert all(not im[disc == 0].any() for im in images)  # the border stays black
+            else:
+                assert all("content" not in r for r in records)
+            ws.send(json.dumps({"type": "end"}))
+            assert closed_with(ws)[0] == 1000
+
+
 # ---------------------------------------------------------------------------------------------- the key and the cap
 
 

@@ -131,6 +131,33 @@ def test_flicker_of_a_known_gain_jump() -> None:
     assert none.luma_out[5:] == pytest.approx([150 / 255] * 5, abs=1e-6)
 
 
+def test_methods_are_scored_on_what_enhance_writes_inside_a_border() -> None:
+    """A round field of view on black: `evaluate` shows the methods the content area, as `colonlight enhance` does
+    (``content="auto"``, the default), so a clip's scores are those of the frames `enhance` writes; ``full``
+    scores the method seeing the whole frame, and the choice is recorded."""
+    from colonlight import enhance_frames
+    from colonlight.metrics import mean_luma
+
+    rng = np.random.default_rng(3)
+    disc = np.zeros((96, 128), np.uint8)
+    cv2.circle(disc, (64, 48), 44, 1, -1)
+    frames = [
+        (np.clip(rng.normal(90 + 5 * i, 30, (96, 128, 1)), 0, 255) * [1.0, 0.6, 0.5] * disc[..., None]).astype(np.uint8)
+        for i in range(20)
+    ]
+    clip = EvalClip("disc", "constructed", frames)
+    masks = content_masks(frames)
+    luma: dict[str, list[float]] = {}
+    for content in ("auto", "full"):
+        result = evaluate_clips([clip], method_list(["rnn"]), colmap=False, tracker=False, content=content)
+        assert result.settings["content"] == content
+        luma[content] = result.clips[0].results["rnn (ours)"].luma_out
+        written = [r.frame for r in enhance_frames(frames, "rnn", content=content, device="cpu")]
+        assert luma[content] == pytest.approx([float(x) for x in mean_luma(written, masks)], abs=1e-9)
+    # seen whole, the border drives the network towards brightening (session 26)
+    assert np.mean(luma["full"]) > np.mean(luma["auto"]) + 0.05, (np.mean(luma["full"]), np.mean(luma["auto"]))
+
+
 def test_exposure_fractions_on_constructed_frames() -> None:
     """A quarter of the content dark (12/255) in the input; the output lifts it to 60 and blows a quarter of
     the image to 250 (content: input luma <= 0.7, so the input's mid-grey counts and nothing is border)."""

@@ -18,7 +18,7 @@ import pytest
 from colonlight_cli.main import app
 from typer.testing import CliRunner
 
-from colonlight.content import DETECT_FRAMES, BlockStats, ContentStream, detect_area, iou
+from colonlight.content import DETECT_FRAMES, BlockStats, ContentStream, detect_area, iou, live_content_stream
 from colonlight.methods import create_method
 from colonlight.methods.rnn import RecurrentGammaMethod, head_correction
 from colonlight.pipeline import ClipOptions, enhance_clip
@@ -283,3 +283,47 @@ def test_a_new_frame_size_is_a_clear_error() -> None:
         stream.push(np.full((20, 30, 3), 100 + i, np.uint8))
     with pytest.raises(ValueError, match="30x21, the stream started at 30x20"):
         stream.push(np.zeros((21, 30, 3), np.uint8))
+
+
+# ----------------------------------------------------------------------------------------------- live sources
+
+
+def test_a_live_stream_finds_a_disc_on_its_first_frame_and_holds_nothing_back(scene: np.ndarray) -> None:
+    """Seen whole, a disc border drives the shipped network to its brightest (session 26: gamma 0.12, the field
+    of view near white). A live stream cannot hold 18 frames back to look: it finds the disc on the first frame,
+    answers every frame as it comes, writes the border unchanged and corrects the picture as it would without
+    the border."""
+    spec = OverlaySpec("round", text=False)
+    fov, _ = truth(spec)
+    frames = drawn(scene, spec)
+    method = create_method("rnn")
+    stream = live_content_stream(method)
+    results = []
+    for i, f in enumerate(frames):
+        got = stream.push(f)
+        assert len(got) == 1, i  # nothing held back
+        results += got
+    assert "content" in results[0].info and results[0].info["content"]["fov_fraction"] < 0.9
+    assert all(np.array_equal(r.frame[~fov], f[~fov]) for r, f in zip(results, frames, strict=True))
+    whole = run_stream(method.stream(), frames)
+    plain = run_stream(method.stream(), scene)
+
+    def level(rs: list) -> float:  # mean grey inside the field of view, after the two seed frames
+        return float(np.mean([cv2.cvtColor(r.frame, cv2.COLOR_RGB2GRAY)[fov].mean() for r in rs[2:]]))
+
+    assert abs(level(results) - level(plain)) < 12, (level(results), level(plain), level(whole))
+    assert level(whole) - level(plain) > 3 * abs(level(results) - level(plain))  # the border does move it
+
+
+def test_a_live_stream_finds_the_area_again_at_a_new_frame_size(scene: np.ndarray) -> None:
+    """A reconnect may bring another frame size: the live stream finds that picture's area (and the method's
+    stream, with its state, goes on), where a clip's stream refuses the frame (above)."""
+    octagon = drawn(scene[:4], OverlaySpec("octagon"))
+    small = np.stack([cv2.resize(f, (SIZE[0] // 2, SIZE[1] // 2), interpolation=cv2.INTER_AREA) for f in scene[4:8]])
+    stream = live_content_stream(create_method("none"))
+    results = [r for f in np.concatenate([octagon]) for r in stream.push(f)]
+    assert stream.area is not None and not stream.area.is_full  # type: ignore[attr-defined]
+    results += [r for f in small for r in stream.push(f)]
+    assert [r.frame.shape for r in results] == [f.shape for f in octagon] + [f.shape for f in small]
+    assert stream.area is not None and stream.area.is_full  # type: ignore[attr-defined]  # no border when small
+    assert results[4].info.get("content") == {"full": True}
