@@ -4,14 +4,13 @@ the server runs on a small tmpfs mounted as its data folder (needs root; skipped
 from __future__ import annotations
 
 import os
-import shutil
-import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
 import pytest
 
+from ..filesystems import mounted_tmpfs
 from ..media import make_clip, needs_ffmpeg
 from ..service_server import ServiceServer
 from .test_service import assert_json_error, leftovers, wait_done
@@ -23,18 +22,8 @@ TMPFS_MB = 16
 
 @pytest.fixture(scope="module")
 def small_disk(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
-    mount_point = tmp_path_factory.mktemp("small-disk")
-    if os.geteuid() != 0 or shutil.which("mount") is None:
-        pytest.skip("mounting a small tmpfs as the data folder needs root and mount(8)")
-    done = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", f"size={TMPFS_MB}m", "tmpfs", str(mount_point)], capture_output=True, text=True
-    )
-    if done.returncode != 0:
-        pytest.skip(f"mounting a tmpfs is not permitted here: {done.stderr.strip()}")
-    try:
+    with mounted_tmpfs(tmp_path_factory.mktemp("small-disk"), f"size={TMPFS_MB}m") as mount_point:
         yield mount_point
-    finally:
-        subprocess.run(["umount", "-l", str(mount_point)], check=False)
 
 
 @pytest.fixture(scope="module")

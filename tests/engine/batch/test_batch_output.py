@@ -9,20 +9,17 @@ one output folder: the second exits 2 naming the first's pid and host; no manife
 from __future__ import annotations
 
 import json
-import os
-import shutil
 import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 
 from colonlight.atomic import TMP_MARK
 
+from ...filesystems import mounted_tmpfs
 from ...media import make_clip, make_noise_clip
 
 GAMMA = ("--method", "gamma", "-q")  # a real method that needs no model: these tests are about outputs
@@ -40,21 +37,6 @@ def one_error_line(stderr: str) -> str:
     lines = [ln for ln in stderr.splitlines() if ln.startswith("error:")]
     assert len(lines) == 1, stderr
     return lines[0]
-
-
-@contextmanager
-def tmpfs(path: Path, options: str = "size=2m") -> Iterator[Path]:
-    """A tmpfs mounted at ``path`` for the test (skip, with the reason, where mounting is not permitted)."""
-    if not sys.platform.startswith("linux") or os.geteuid() != 0 or shutil.which("mount") is None:
-        pytest.skip("mounting a test file system needs root on Linux and the mount tool")
-    path.mkdir(parents=True, exist_ok=True)
-    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(path)], capture_output=True, text=True)
-    if proc.returncode != 0:
-        pytest.skip(f"mounting a tmpfs is not permitted here: {proc.stderr.strip()}")
-    try:
-        yield path
-    finally:
-        subprocess.run(["umount", "-l", str(path)], capture_output=True)
 
 
 def temporaries(root: Path) -> list[Path]:
@@ -83,11 +65,12 @@ def test_output_path_is_a_file(clips: Path, tmp_path: Path) -> None:
 
 
 def test_output_on_a_read_only_file_system(clips: Path, tmp_path: Path) -> None:
-    with tmpfs(tmp_path / "ro", "size=1m,ro") as ro:  # a fresh, empty, read-only file system
+    with mounted_tmpfs(tmp_path / "ro", "size=1m,ro") as ro:  # a fresh, empty, read-only file system
         proc = colonlight("enhance", clips / "a.mp4", "-o", ro / "out", *GAMMA)
         assert proc.returncode == 2, proc.stderr
         assert "read-only file system" in one_error_line(proc.stderr)
-    with tmpfs(tmp_path / "rw", "size=1m") as rw:  # a finished output folder, its file system remounted read-only
+    # a finished output folder, its file system remounted read-only
+    with mounted_tmpfs(tmp_path / "rw", "size=1m") as rw:
         assert colonlight("enhance", clips / "a.mp4", "-o", rw / "out", *GAMMA).returncode == 0
         before = {p: p.read_bytes() for p in (rw / "out").rglob("*") if p.is_file()}
         subprocess.run(["mount", "-o", "remount,ro", str(rw)], check=True)
@@ -100,7 +83,7 @@ def test_output_on_a_read_only_file_system(clips: Path, tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("outputs", [("--frames", "--no-video"), ("--no-frames", "--video")], ids=["frames", "video"])
 def test_disk_fills_mid_run(clips: Path, tmp_path: Path, outputs: tuple[str, str]) -> None:
-    with tmpfs(tmp_path / "disk") as disk:
+    with mounted_tmpfs(tmp_path / "disk") as disk:
         if "--video" in outputs:  # an H.264 of noise is small: leave it less room
             (disk / "filler").write_bytes(b"\0" * 1_700_000)
         out = disk / "out"
@@ -120,7 +103,7 @@ def test_disk_fills_mid_run(clips: Path, tmp_path: Path, outputs: tuple[str, str
 
 def test_full_disk_keeps_the_last_complete_manifest(clips: Path, tmp_path: Path) -> None:
     """No room even for the manifest: every clip fails on one line, the earlier manifest is kept whole, exit 1."""
-    with tmpfs(tmp_path / "disk") as disk:
+    with mounted_tmpfs(tmp_path / "disk") as disk:
         out = disk / "out"
         assert colonlight("enhance", clips / "a.mp4", "-o", out, *GAMMA).returncode == 0
         earlier = (out / "manifest.json").read_bytes()

@@ -10,19 +10,18 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import shutil
 import signal
 import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import av
 import cv2
 import pytest
 
+from ...filesystems import mounted_tmpfs
 from ...media import X264, ffmpeg_exe, index_frame, make_clip, make_noise_clip, needs_ffmpeg
 
 pytestmark = [needs_ffmpeg, pytest.mark.timeout(120)]
@@ -238,26 +237,12 @@ def test_a_size_change_under_a_pipe_names_the_source_and_the_outputs_agree(
             assert sum(1 for _ in c.decode(video=0)) == 30
 
 
-@contextlib.contextmanager
-def _small_disk(where: Path, options: str) -> Iterator[Path]:
-    if os.geteuid() != 0 or shutil.which("mount") is None:
-        pytest.skip("mounting a small tmpfs needs root and mount(8)")
-    where.mkdir()
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(where)], capture_output=True)
-    if done.returncode != 0:
-        pytest.skip(f"mounting a tmpfs is not permitted here: {done.stderr.decode().strip()}")
-    try:
-        yield where
-    finally:
-        subprocess.run(["umount", "-l", str(where)], check=False)
-
-
 def test_a_disk_that_fills_mid_stream_ends_in_one_line_with_whole_outputs(
     tmp_path: Path, clips: dict[str, Path]
 ) -> None:
     # it was an OSError traceback; frames after a lost one were still published (a gap), and a log line cut by
     # the full disk stayed half-written
-    with _small_disk(tmp_path / "disk1", "size=1m") as disk:
+    with mounted_tmpfs(tmp_path / "disk1", "size=1m") as disk:
         out = disk / "out"
         code, err = _stream(str(clips["busy"]), "-o", str(out), "--format", "png", "--fps", "0")
         assert code == 1
@@ -265,7 +250,7 @@ def test_a_disk_that_fills_mid_stream_ends_in_one_line_with_whole_outputs(
         frames = _frames(out)
         assert frames == list(range(len(frames))) and 0 < len(frames) < 40  # whole frames, no gap
         _log(out)  # whole records
-    with _small_disk(tmp_path / "disk2", "size=8k") as disk:  # the log alone fills it
+    with mounted_tmpfs(tmp_path / "disk2", "size=8k") as disk:  # the log alone fills it
         out = disk / "out"
         code, err = _stream(str(clips["live"]), "-o", str(out), "--no-frames", "--fps", "0")
         assert code == 1
@@ -274,7 +259,7 @@ def test_a_disk_that_fills_mid_stream_ends_in_one_line_with_whole_outputs(
         records = _log(out)
         assert [r["index"] for r in records] == list(range(len(records))) and 0 < len(records) < 150
 
-    with _small_disk(tmp_path / "disk3", "size=1m,ro") as disk:  # a read-only file system: OUT cannot be made
+    with mounted_tmpfs(tmp_path / "disk3", "size=1m,ro") as disk:  # a read-only file system: OUT cannot be made
         out = disk / "out"
         code, err = _stream(str(clips["small"]), "-o", str(out))
         assert code == 1
