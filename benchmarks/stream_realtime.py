@@ -316,11 +316,20 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--seconds", type=float, default=SHORT_SECONDS, help="length of each live run")
     parser.add_argument("--long", action="store_true", help=f"{LONG_SECONDS // 60}-minute runs (the full check)")
     parser.add_argument("--size", default="1920x1080", help="feed size WxH")
-    parser.add_argument("--configs", default="log+pipe,log+pipe+jpg", help="comma-separated: log+pipe, log+pipe+jpg")
+    parser.add_argument(
+        "--configs",
+        default="log+pipe,log+pipe+jpg",
+        help="comma-separated: log+pipe, log+pipe+jpg, log+pipe-whole (log+pipe with --content full: the baseline "
+        "for the content area's cost)",
+    )
     args = parser.parse_args(argv or [])
     seconds = LONG_SECONDS if args.long else args.seconds
     width, height = (int(v) for v in args.size.lower().split("x"))
-    configs = {"log+pipe": ["--no-frames"], "log+pipe+jpg": ["--format", "jpg", "--keep", "100"]}
+    configs = {
+        "log+pipe": ["--no-frames"],
+        "log+pipe+jpg": ["--format", "jpg", "--keep", "100"],
+        "log+pipe-whole": ["--no-frames", "--content", "full"],
+    }
     rows = []
     drops: list[str] = []
     with tempfile.TemporaryDirectory(prefix="colonlight-bench-stream-") as tmp:
