@@ -18,7 +18,7 @@ from colonlight.limits import (
     MAX_FPS,
     MAX_GAP_FRAMES_ENV,
     MAX_PIXELS_ENV,
-    MIN_FPS,
+    is_usable_fps,
 )
 from colonlight.methods.options import OPTIONS, methods_kwargs, option
 
@@ -97,6 +97,9 @@ MaxGapFrames = typer.Option(
     help="Most copies of one frame a timestamp gap may add (the fps conversion repeats a frame until the next is "
     "due); a clip past it fails. Default: 10 minutes at 18 fps.",
 )
+#: Largest side of a rendered synthetic clip (`synth`, `train --synthetic-size`): a 4096 x 4096 frame is the
+#: pixel cap `enhance` reads by default.
+MAX_RENDER_SIDE = 4096
 Content = typer.Option(
     "auto",
     "--content",
@@ -150,7 +153,7 @@ def invocation(ctx: typer.Context) -> str:
 def check_fps(fps: float) -> None:
     """A usage error unless ``0 <= fps <= MAX_FPS`` (the service's bound too) and ``fps`` is 0 or at least
     ``MIN_FPS`` (1/1001: a lower rate rounds to 0 frames per second)."""
-    if not (0 <= fps <= MAX_FPS and (fps == 0 or fps >= MIN_FPS)):
+    if not is_usable_fps(fps):
         raise typer.BadParameter(
             f"must be within 0..{MAX_FPS:g} frames per second (0 keeps every frame; else at least 1/1001), got {fps:g}",
             param_hint="--fps",

@@ -9,10 +9,7 @@ import typer
 from colonlight.limits import DEFAULT_FPS, MAX_FPS
 
 from .display import console, error_line
-from .options import clip_mix
-
-#: Largest clip side rendered (a frame of 4096 x 4096 is the pixel cap `enhance` reads by default).
-MAX_SIZE = 4096
+from .options import MAX_RENDER_SIDE, clip_mix
 
 
 def synth(
@@ -20,8 +17,8 @@ def synth(
     clips: int = typer.Option(1, "--clips", "-n", min=1, help="Number of clips."),
     seed: int = typer.Option(0, "--seed", min=0, help="Seed of the first clip; clip i uses seed + i."),
     frames: int = typer.Option(90, "--frames", min=2, help="Frames per clip."),
-    width: int = typer.Option(384, "--width", min=32, max=MAX_SIZE),
-    height: int = typer.Option(288, "--height", min=32, max=MAX_SIZE),
+    width: int = typer.Option(384, "--width", min=32, max=MAX_RENDER_SIDE),
+    height: int = typer.Option(288, "--height", min=32, max=MAX_RENDER_SIDE),
     fps: float = typer.Option(
         DEFAULT_FPS, "--fps", min=1.0, max=MAX_FPS, help="Frame rate of the clip (and its timestamps)."
     ),

@@ -12,7 +12,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from colonlight.limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE, MAX_MODEL_SIZE
 
 from .display import console, error_line, printable
-from .options import check_fps, clip_mix, invocation
+from .options import MAX_RENDER_SIDE, check_fps, clip_mix, invocation
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
@@ -98,7 +98,11 @@ def train_cmd(
         2, "--synthetic-val", min=0, help="Synthetic validation clips (seeds after the training ones)."
     ),
     synthetic_size: int = typer.Option(
-        128, "--synthetic-size", min=32, max=4096, help="Render size of synthetic clips (then resized to --size)."
+        128,
+        "--synthetic-size",
+        min=32,
+        max=MAX_RENDER_SIDE,
+        help="Render size of synthetic clips (then resized to --size).",
     ),
     synthetic_steady: float = clip_mix("steady", "--synthetic-steady", 0.25),
     synthetic_occluders: float = clip_mix("occluders", "--synthetic-occluders", 0.0),

@@ -32,6 +32,7 @@ _EXPORTS: dict[str, str] = {
     "load_weights": "checkpoint",
     "save_weights": "checkpoint",
     "DEFAULT_CONTENT": "content",
+    "ContentMode": "content",
     "content_stream": "content",
     "live_content_stream": "content",
     "parse_content_mode": "content",
@@ -98,7 +99,7 @@ if TYPE_CHECKING:
     from .batch import MANIFEST_FILE, ManifestError, default_workers, run_batch, warm_method
     from .checkpoint import DEFAULT_WEIGHTS, LoadedWeights, load_weights, save_weights
     from .cluster import ClusterRunner
-    from .content import DEFAULT_CONTENT, content_stream, live_content_stream, parse_content_mode
+    from .content import DEFAULT_CONTENT, ContentMode, content_stream, live_content_stream, parse_content_mode
     from .curves import apply_gamma, apply_lut, gamma_lut
     from .device import resolve_device
     from .discovery import VIDEO_SUFFIXES, PathProblem, discover, discover_clips, synthetic_folder_of
@@ -142,6 +143,7 @@ __all__ = [
     "ClipResult",
     "ClusterRunner",
     "ColonlightError",
+    "ContentMode",
     "DEFAULT_CONTENT",
     "DEFAULT_WEIGHTS",
     "DeviceError",

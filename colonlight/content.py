@@ -415,20 +415,19 @@ class ContentStream(MethodStream):
         return out
 
 
-def content_stream(method: Method, mode: str = DEFAULT_CONTENT) -> MethodStream:
+def content_stream(method: Method, mode: str = DEFAULT_CONTENT, *, live: bool = False) -> MethodStream:
     """A fresh stream of ``method`` for one clip, shown the content area (``auto``) or the whole frame
-    (``full``)."""
+    (``full``). ``live``: for a source that cannot wait, :func:`live_content_stream`."""
     inner = method.stream()
-    return ContentStream(inner) if parse_content_mode(mode) == "auto" else inner
+    if parse_content_mode(mode) == "full":
+        return inner
+    return ContentStream(inner, first_frames=LIVE_FIRST_FRAMES, resize="redetect") if live else ContentStream(inner)
 
 
 def live_content_stream(method: Method, mode: str = DEFAULT_CONTENT) -> MethodStream:
     """:func:`content_stream` for a live source (``colonlight stream``, the service's WebSocket): the first area
     is found on the first frame, so no frame waits, and a change of frame size finds the area again."""
-    inner = method.stream()
-    if parse_content_mode(mode) == "full":
-        return inner
-    return ContentStream(inner, first_frames=LIVE_FIRST_FRAMES, resize="redetect")
+    return content_stream(method, mode, live=True)
 
 
 __all__ = [

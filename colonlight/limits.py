@@ -21,6 +21,14 @@ MAX_FPS = 240.0
 #: Lowest extraction rate above 0 accepted: frame rates are exact ratios with a denominator of at most 1001
 #: (NTSC), so a lower one would round to 0 frames per second.
 MIN_FPS = 1 / 1001
+
+
+def is_usable_fps(fps: float) -> bool:
+    """Whether ``fps`` is an extraction rate colonlight accepts: 0 (every source frame), or ``MIN_FPS`` up to
+    ``MAX_FPS`` (NaN is not)."""
+    return 0 <= fps <= MAX_FPS and (fps == 0 or fps >= MIN_FPS)
+
+
 #: Environment variable that overrides :data:`DEFAULT_MAX_PIXELS` in the CLI and the service alike.
 MAX_PIXELS_ENV = "COLONLIGHT_MAX_PIXELS"
 #: Most copies of one source frame that the fps conversion may add for a timestamp gap (the frame repeated

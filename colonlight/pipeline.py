@@ -44,8 +44,8 @@ from .limits import (
     DEFAULT_JPEG_QUALITY,
     MAX_FPS,
     MAX_JPEG_QUALITY,
-    MIN_FPS,
     MIN_JPEG_QUALITY,
+    is_usable_fps,
     max_gap_frames_setting,
     max_pixels_setting,
 )
@@ -124,7 +124,7 @@ class ClipOptions:
             raise OptionError(f"format must be png or jpg, got {self.format!r}")
         if not MIN_JPEG_QUALITY <= self.quality <= MAX_JPEG_QUALITY:
             raise OptionError(f"quality must be within {MIN_JPEG_QUALITY}..{MAX_JPEG_QUALITY}, got {self.quality}")
-        if self.fps is not None and not (0 <= self.fps <= MAX_FPS and (self.fps == 0 or self.fps >= MIN_FPS)):
+        if self.fps is not None and not is_usable_fps(self.fps):
             raise OptionError(f"fps must be 0 or within 1/1001..{MAX_FPS:g}, got {self.fps:g}")
         if self.max_pixels < 1:
             raise OptionError(f"max_pixels must be >= 1, got {self.max_pixels}")

@@ -9,13 +9,12 @@ settings, not request options.
 
 from __future__ import annotations
 
-import math
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, create_model, field_validator
 from pydantic_core import PydanticCustomError
 
-from colonlight import MethodSpec
+from colonlight import DEFAULT_CONTENT, ContentMode, MethodSpec
 from colonlight.errors import MethodOptionError
 from colonlight.limits import (
     DEFAULT_FPS,
@@ -24,8 +23,8 @@ from colonlight.limits import (
     DEFAULT_METHOD,
     MAX_FPS,
     MAX_JPEG_QUALITY,
-    MIN_FPS,
     MIN_JPEG_QUALITY,
+    is_usable_fps,
 )
 from colonlight.methods.options import method_kwargs, option, request_options
 
@@ -68,8 +67,8 @@ class _ClipOptions(BaseModel):
     format: Literal["png", "jpg"] = Field(DEFAULT_FRAME_FORMAT, description="Format of the enhanced frames (the zip).")
     quality: int = Field(DEFAULT_JPEG_QUALITY, ge=MIN_JPEG_QUALITY, le=MAX_JPEG_QUALITY, description="JPEG quality.")
     frames: bool = Field(True, description="Also write the enhanced frames (downloadable as a zip).")
-    content: Literal["auto", "full"] = Field(
-        "auto",
+    content: ContentMode = Field(
+        DEFAULT_CONTENT,
         description="auto: the method sees only the field of view inside a black border, less fixed on-screen "
         "text; border and text pixels are written unchanged. full: the whole frame.",
     )
@@ -84,7 +83,7 @@ class _ClipOptions(BaseModel):
     def _usable_fps(cls, value: float | None) -> float | None:
         # NaN and infinities are not rates; a positive rate under 1/1001 rounds to 0 frames per second (the CLI's
         # check_fps refuses both too): refused here, not accepted and then failed as a job
-        if value is not None and (not math.isfinite(value) or 0 < value < MIN_FPS):
+        if value is not None and not is_usable_fps(value):
             raise ValueError(f"must be 0 (every frame) or a rate within 1/1001..{MAX_FPS:g}, got {value!r}")
         return value
 

@@ -51,7 +51,7 @@ from fastapi import APIRouter, WebSocket
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
 from starlette.websockets import WebSocketDisconnect
 
-from colonlight import DEFAULT_CONTENT, ColonlightError, FrameResult, MethodStream, live_content_stream
+from colonlight import DEFAULT_CONTENT, ColonlightError, ContentMode, FrameResult, MethodStream, live_content_stream
 from colonlight.limits import MAX_JPEG_QUALITY, MIN_JPEG_QUALITY
 
 from ..deps import key_is_valid
@@ -84,7 +84,7 @@ class _StreamStartBase(BaseModel):
         90, ge=MIN_JPEG_QUALITY, le=MAX_JPEG_QUALITY, description="JPEG quality of the frames sent back."
     )
     frames: bool = Field(True, description="Send the enhanced frames (false: the gamma records only).")
-    content: Literal["auto", "full"] = Field(
+    content: ContentMode = Field(
         DEFAULT_CONTENT,
         description="auto: the method sees the field of view inside a black border, less fixed on-screen text, found "
         "on the first frame (none is held back) and checked on every block of frames after; border and text "

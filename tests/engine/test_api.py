@@ -15,6 +15,7 @@ def test_all_is_sorted_and_pinned() -> None:
         "ClipResult",
         "ClusterRunner",
         "ColonlightError",
+        "ContentMode",
         "DEFAULT_CONTENT",
         "DEFAULT_WEIGHTS",
         "DeviceError",
