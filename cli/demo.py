@@ -40,8 +40,14 @@ def demo(
     """Render a synthetic colonoscopy clip, enhance it with the default model, and say where everything is."""
     import numpy as np
 
-    from colonlight.synth import SYNTH_VIDEO, SynthConfig, write_clip
+    from colonlight import OutputError, prepare_output
+    from colonlight.synth import SYNTH_VIDEO, SynthConfig, clip_complete, write_clip
 
+    try:  # an output that is a file (or under one) was a NotADirectoryError traceback
+        prepare_output(output)
+    except OutputError as exc:
+        error_line(str(exc))
+        raise typer.Exit(2) from None
     clip_dir = output / "input"
     cfg = SynthConfig.sample(
         np.random.default_rng(DEMO_SEED),
@@ -53,7 +59,10 @@ def demo(
         undisturbed_seeds=True,
     )
     video_path = clip_dir / SYNTH_VIDEO
-    if not video_path.is_file():
+    # The clip is kept only if it is the one asked for: a rerun with another --frames reused the first run's
+    # clip and its enhanced result, and reported them as if they were of the length asked for.
+    rendered = not clip_complete(clip_dir, cfg, DEMO_SEED, video=True)
+    if rendered:
         console.print(f"rendering a synthetic clip ({frames} frames at {DEMO_FPS:g} fps) into {clip_dir} ...")
         write_clip(clip_dir, cfg, seed=DEMO_SEED, video=True, frames=False)
     enhanced = output / "enhanced"
@@ -66,6 +75,7 @@ def demo(
             spec,
             ClipOptions(fps=DEFAULT_FPS, video=True),
             enhanced,
+            overwrite=rendered,  # a new clip: the result of the one it replaced is not its result
             progress=None if quiet else display.event,
             on_outcome=display.outcome,
         )

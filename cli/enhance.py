@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import signal
 import threading
 import time
@@ -167,6 +168,18 @@ def enhance(
         raise typer.Exit(1)
 
 
+def _silence_dask_logs() -> None:
+    """Keep Dask's own log lines off the console (``--debug`` shows them): a scheduler lost mid-batch made its
+    client log an ERROR with a traceback, even after the batch had said so in one line per clip. For the rest of
+    the process: the client's reconnect attempts log after the batch has returned."""
+    try:
+        import distributed  # noqa: F401 - importing it sets its loggers' levels, which this then overrides
+    except ImportError:
+        return  # the batch says in one line what to install
+    for name in ("distributed", "distributed.client"):
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+
+
 def _run(
     inputs: list[Path],
     output: Path,
@@ -183,6 +196,8 @@ def _run(
     with imports_frozen():
         load_method_or_exit(spec, debug)  # load the model now: a bad checkpoint or absent device stops here, loudly
     tune_for_clips(network_threads(spec, 1))  # this process may run the clips: its torch threads and malloc, once
+    if cluster and not debug:
+        _silence_dask_logs()
     try:
         with output_lock(output):
             found = discover(inputs, output, pattern, exclude=[output])

@@ -158,7 +158,7 @@ def evaluate(
         ),
     ] = 0,
     seed0: Annotated[
-        int, typer.Option("--seed0", help="Seed of the first synthetic clip (clip i: seed0 + i).")
+        int, typer.Option("--seed0", min=0, help="Seed of the first synthetic clip (clip i: seed0 + i).")
     ] = 800_000,  # colonlight.evaluation.clips.BENCHMARK_SEED0 (not imported: keeps `colonlight --help` light)
     frames: Annotated[int, typer.Option("--frames", min=2, help="Frames per synthetic clip.")] = 72,
     family: Annotated[
@@ -234,6 +234,10 @@ def evaluate(
 
     names = _method_names(methods)
     options.check_fps(fps)
+    if max_frames == 1:  # every clip failed with "only 1 frame(s); at least 2 are needed"
+        raise typer.BadParameter(
+            "1 frame has no frame pair to compare: give 0 (all) or 2 or more", param_hint="--max-frames"
+        )
     from colonlight.synth import SPLITS, parse_split
 
     try:
@@ -252,7 +256,15 @@ def evaluate(
         error_line(str(exc))
         raise typer.Exit(2) from None
     # only now: the evaluation's own modules import the extra's packages
-    from colonlight.evaluation import evaluate_clips, find_clips, make_benchmark, method_list, summarize, write_report
+    from colonlight.evaluation import (
+        evaluate_clips,
+        find_clips,
+        make_benchmark,
+        method_list,
+        summarize,
+        unique_clips,
+        write_report,
+    )
 
     if not inputs and not synthetic:
         raise typer.BadParameter("give clips to evaluate, or --synthetic N", param_hint="INPUTS")
@@ -299,6 +311,7 @@ def evaluate(
             on_clip=rendered,
             family=split,
         )
+        refs = unique_clips(refs)  # a benchmark rendered into an input folder (-o INPUT) was found there too
     if not refs:
         error_line("no clips found in " + ", ".join(str(p) for p in inputs or []))
         raise typer.Exit(1)

@@ -64,6 +64,12 @@ def run() -> None:
     except KeyboardInterrupt:
         error_line("interrupted; rerun the same command to resume")
         sys.exit(130)
+    except SystemExit as exc:
+        # typer turns Ctrl-C inside a command into a silent exit 130 (Exit raised from the KeyboardInterrupt);
+        # commands that handle the signal themselves (enhance, stream) say so and raise Exit(130) from None
+        if isinstance(exc.__context__, typer.Exit) and isinstance(exc.__context__.__cause__, KeyboardInterrupt):
+            error_line("interrupted; rerun the same command to resume")
+        raise
 
 
 if __name__ == "__main__":

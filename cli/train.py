@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import itertools
 import math
+import os
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NoReturn
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -190,6 +192,8 @@ def train_cmd(
         _export_epoch(output, export_epoch)
         return
     _check_numbers(fps, lr, consistency=consistency, temporal=temporal, exposure_jitter=exposure_jitter, anchor=anchor)
+    _check_name(name)
+    _check_output(output)
     command = invocation(ctx)
     if method == "rnn" and init == "default":
         from colonlight import DEFAULT_WEIGHTS
@@ -296,18 +300,21 @@ def train_cmd(
                 f"epoch {rec.epoch}: train loss {rec.train_loss:.4f}, val loss {val_txt}, {rec.seconds:.0f} s"
             )
 
-        result = train_model(
-            train_clips,
-            val_clips,
-            output,
-            cfg,
-            name=name,
-            card_extra=extra,
-            resume=resume,
-            on_step=on_step,
-            on_epoch=on_epoch,
-            on_skip=_skip_line,
-        )
+        try:
+            result = train_model(
+                train_clips,
+                val_clips,
+                output,
+                cfg,
+                name=name,
+                card_extra=extra,
+                resume=resume,
+                on_step=on_step,
+                on_epoch=on_epoch,
+                on_skip=_skip_line,
+            )
+        except OSError as exc:  # a disk that fills mid-run: the epochs saved so far stay, the rerun resumes
+            _write_failed(exc, output)
     console.print(f"weights: {result.weights}\ncard:    {result.weights.with_suffix('.json')}")
     _exit_if_skipped(result.skipped, " (listed in the card)")
 
@@ -323,6 +330,36 @@ def _check_numbers(fps: float, lr: float, **weights: float) -> None:
             raise typer.BadParameter(
                 f"must be a finite number, got {value:g}", param_hint="--" + name.replace("_", "-")
             )
+
+
+def _check_name(name: str) -> None:
+    """A usage error for a ``--name`` that is no plain file name: empty (the weights would be a hidden
+    ``.safetensors``), hidden, or a path (``../x`` would write outside OUTPUT)."""
+    if not name or name.startswith(".") or "/" in name or "\\" in name or "\0" in name:
+        raise typer.BadParameter(
+            f"must be a plain file name (no folder, not hidden), got {name!r}", param_hint="--name"
+        )
+
+
+def _check_output(output: Path) -> None:
+    """A usage error, before anything is rendered or trained, for an OUTPUT that can never be the run's folder:
+    a file, or a path under one (it was a traceback after the first epoch). Nothing is created here."""
+    for path in (output, *output.parents):
+        if path.exists():
+            if not path.is_dir():
+                what = "the output path is a file" if path == output else f"{path} is a file"
+                raise typer.BadParameter(f"{output}: {what}, not a folder", param_hint="--output")
+            if not os.access(path, os.W_OK | os.X_OK):
+                raise typer.BadParameter(
+                    f"{output}: {path} cannot be written (permission denied)", param_hint="--output"
+                )
+            return
+
+
+def _write_failed(exc: OSError, output: Path) -> NoReturn:
+    """One line for a run folder that could not be written (disk full, read-only), exit 1."""
+    error_line(f"{exc.filename or output}: cannot write the run: {exc.strerror or exc}")
+    raise typer.Exit(1) from None
 
 
 def _export_epoch(run_dir: Path, epoch: int) -> None:
@@ -366,20 +403,32 @@ def _train_zerodce(
                 _skip_line(str(exc))
 
     stem = name if name != "colonlight-rnn" else variant
-    result = train_zerodce(
-        frames(),
-        variant=variant,
-        epochs=epochs,
-        lr=lr,
-        batch=batch,
-        size=size,
-        seed=seed,
-        out_path=output / f"{stem}.safetensors",
-        colour_constancy_weight=0.0,
-        name=stem,
-        card_extra={**extra, "frames": "every 3rd frame of the training clips"},
-        on_epoch=lambda e: console.print(f"epoch {e.epoch}: loss {e.loss:.4f}, {e.seconds:.0f} s"),
-    )
+    data = frames()
+    first = next(data, None)  # none at all was train_zerodce's ValueError("no training frames"), a traceback
+    if first is None:
+        why = f"{len(skipped)} of {len(clips)} clips could not be used (the first: {skipped[0]})" if skipped else ""
+        error_line(f"no training frames{': ' + why if why else f' in the {len(clips)} clip(s)'}")
+        raise typer.Exit(1)
+    try:
+        result = train_zerodce(
+            itertools.chain([first], data),
+            variant=variant,
+            epochs=epochs,
+            lr=lr,
+            batch=batch,
+            size=size,
+            seed=seed,
+            out_path=output / f"{stem}.safetensors",
+            colour_constancy_weight=0.0,
+            name=stem,
+            card_extra={**extra, "frames": "every 3rd frame of the training clips"},
+            on_epoch=lambda e: console.print(f"epoch {e.epoch}: loss {e.loss:.4f}, {e.seconds:.0f} s"),
+        )
+    except FloatingPointError as exc:  # diverged: nothing is written
+        error_line(f"{exc}: try a lower --lr (this run: {lr:g})")
+        raise typer.Exit(1) from None
+    except OSError as exc:
+        _write_failed(exc, output)
     console.print(f"weights: {result.weights}\ncard:    {result.weights.with_suffix('.json')}")
     _exit_if_skipped(skipped, "")
 

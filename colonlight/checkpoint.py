@@ -98,6 +98,21 @@ def read_card(path: Path, digest: str) -> dict[str, Any]:
 _LOAD_ERRORS = (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile, ValueError, OSError)
 
 
+def _weights_only_reason(text: str) -> str:
+    """What torch's weights-only unpickler refused, in words for a user. Its own first line ("Weights only load
+    failed. In PyTorch 2.6, we changed the default ... Re-running `torch.load` with `weights_only` set to `False`")
+    says the same of random bytes and of a pickled model, suggests unpickling a file of unknown origin, and
+    can carry terminal escapes; the cause is in its "WeightsUnpickler error:" part."""
+    detail = text.partition("WeightsUnpickler error:")[2].strip()
+    if detail.startswith("Unsupported global:"):  # "Unsupported global: GLOBAL pkg.Class was not an allowed ..."
+        name = detail.removeprefix("Unsupported global:").split()[1:2] or ["an object"]
+        return (
+            f"it holds a pickled object ({name[0]}), not only tensors, and is not unpickled, which could run "
+            "code: save the model's state_dict() instead"
+        )
+    return "its bytes are not a checkpoint torch can read"
+
+
 def _state_dict_from_pth(path: Path) -> dict[str, torch.Tensor]:
     try:
         with warnings.catch_warnings():  # its "unusual pickle protocol" warning on garbage: the error below says it
@@ -109,6 +124,8 @@ def _state_dict_from_pth(path: Path) -> dict[str, torch.Tensor]:
     except Exception as exc:  # noqa: BLE001
         said = isinstance(exc, _LOAD_ERRORS) and str(exc).strip()  # the others' text is an opcode's key or index
         reason = str(exc).strip().splitlines()[0] if said else "its bytes are not a checkpoint torch can read"
+        if isinstance(exc, pickle.UnpicklingError):
+            reason = _weights_only_reason(str(exc))
         raise CheckpointError(f"{path}: not a readable PyTorch state dict ({reason[:200]})") from exc
     if isinstance(obj, dict):
         for key in ("state_dict", "model", "model_state_dict"):

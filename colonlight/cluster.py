@@ -22,6 +22,9 @@ Checks, so that a misconfigured cluster fails loudly and early:
 * every task checks again on the worker that runs it (workers may join later): a clip whose source, output
   folder (created here before the task is sent) or model the worker does not share becomes a failed outcome
   with a clear message, and the rest goes on;
+* while a batch runs, at least one worker must stay connected: when none has been for
+  ``COLONLIGHT_CLUSTER_TIMEOUT`` seconds (every worker died, none restarted), the clips not finished fail with one
+  line each instead of waiting for a worker forever;
 * a clip the worker reports done must be visible here (its ``gammas.json``, with the reported frame count), else
   it is a failed outcome: outputs that landed on a worker's own disk are not taken for done.
 
@@ -36,6 +39,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
 import os
 import queue
 import time
@@ -58,6 +62,8 @@ PROGRESS_TOPIC = "colonlight-progress"
 MARKER_NAME = ".colonlight-cluster-check"
 #: Seconds to wait for a worker's outputs to become visible here (network filesystems' attribute caches).
 VISIBLE_TIMEOUT = 5.0
+#: Seconds between two checks, during a batch, that a worker is still connected.
+WORKER_CHECK_INTERVAL = 1.0
 #: Seconds between two ``frames`` events of one clip.
 FRAME_EVENT_INTERVAL = 0.5
 #: At most this many input clips are checked on every worker before a batch (every task checks its own).
@@ -65,13 +71,24 @@ PROBE_SOURCES = 32
 SHARED_FS_HINT = "the workers need the inputs, weights and outputs at the same paths (a shared filesystem)"
 
 
+#: Longest ``COLONLIGHT_CLUSTER_TIMEOUT`` (a day): ``inf`` or ``1e300`` overflowed Dask's deadlines (``time_t``),
+#: so that even a live scheduler was "unreachable"; NaN and negative values were silently taken as 0.5 s.
+MAX_CLUSTER_TIMEOUT = 86400.0
+
+
 def cluster_timeout() -> float:
-    """Seconds to wait for the scheduler (and for a first worker): ``COLONLIGHT_CLUSTER_TIMEOUT``, default 10."""
+    """Seconds to wait for the scheduler, for a first worker, and for a worker again when none is left mid-batch:
+    ``COLONLIGHT_CLUSTER_TIMEOUT``, default 10, at least 0.5; a value that is not a number of seconds from 0 to a
+    day is a one-line error."""
     raw = os.environ.get("COLONLIGHT_CLUSTER_TIMEOUT", "").strip()
     try:
         value = float(raw) if raw else 10.0
     except ValueError:
-        raise ColonlightError(f"COLONLIGHT_CLUSTER_TIMEOUT must be a number of seconds, got {raw!r}") from None
+        value = math.nan
+    if not 0 <= value <= MAX_CLUSTER_TIMEOUT:  # NaN fails this too
+        raise ColonlightError(
+            f"COLONLIGHT_CLUSTER_TIMEOUT must be a number of seconds from 0 to {MAX_CLUSTER_TIMEOUT:g}, got {raw!r}"
+        )
     return max(0.5, value)
 
 
@@ -243,11 +260,19 @@ class ClusterRunner:
                 f"{address!r} is not a Dask scheduler address such as tcp://HOST:8786 ({_one_line(exc)})"
             ) from None
         try:
+            if scheme != "inproc":
+                _handshake(address, self.timeout)
             self.client = Client(address, timeout=self.timeout, set_as_default=False)
-        except (OSError, TimeoutError, ValueError) as exc:
+        except Exception as exc:  # noqa: BLE001 - whatever the other end does, it is not a scheduler we can use
+            if isinstance(exc, TimeoutError):
+                why = "it accepted the connection but sent no Dask handshake"
+            elif isinstance(exc, MemoryError):  # e.g. an HTTP server's answer, read as a frame length
+                why = "its answer is not Dask's protocol"
+            else:  # refused, unreachable, a tls:// address without TLS settings
+                why = _one_line(exc)
             raise ColonlightError(
                 f"cannot reach the Dask scheduler at {address} within {self.timeout:g} s "
-                f"({_one_line(exc)}); is `dask scheduler` running there?"
+                f"({why}); is `dask scheduler` running there?"
             ) from None
         self._model_cache: dict[MethodSpec, dict[str, Any] | None] = {}
 
@@ -275,6 +300,14 @@ class ClusterRunner:
         except Exception as exc:  # noqa: BLE001 - e.g. the scheduler went away meanwhile
             raise ColonlightError(f"lost the Dask scheduler at {self.address}: {_one_line(exc)}") from None
         return len(self.client.scheduler_info(n_workers=-1).get("workers", {}))
+
+    def connected_workers(self) -> int | None:
+        """How many workers are connected now; ``None`` when the scheduler does not answer (its loss cancels the
+        batch's futures, which then fail on their own)."""
+        try:
+            return len(self.client.scheduler_info(n_workers=-1).get("workers", {}))
+        except Exception:  # noqa: BLE001 - a lost scheduler, a closing client
+            return None
 
     def _expected_model(self, spec: MethodSpec) -> dict[str, Any] | None:
         """This machine's model_info() for ``spec`` (None when it cannot build the method: the workers then decide)."""
@@ -391,6 +424,43 @@ class ClusterRunner:
         return result
 
 
+def _handshake(address: str, timeout: float) -> None:
+    """Connect to ``address`` and exchange Dask's handshake within ``timeout`` seconds, or raise.
+
+    Dask's ``Client`` bounds the connection by its timeout but not the handshake read after it: a server that
+    accepts and stays silent held ``Client()`` (and the batch) forever, and one that answers something else (an
+    HTTP server) made it read a frame length of exabytes (a MemoryError traceback). Run in a thread of its own: the
+    caller may be inside an event loop (the service's start-up).
+    """
+    import asyncio
+    import threading
+
+    from distributed.comm.core import connect
+    from distributed.security import Security
+
+    async def shake() -> None:
+        args = Security().get_connection_args("client")
+        # connect() gives up on an address that refuses within ``timeout`` (an OSError); this bounds the handshake
+        comm = await asyncio.wait_for(connect(address, timeout=timeout, **args), timeout + 1)
+        await comm.close()
+
+    failure: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            asyncio.run(shake())
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller
+            failure.append(exc)
+
+    thread = threading.Thread(target=run, name="colonlight-dask-handshake", daemon=True)
+    thread.start()
+    thread.join(timeout + 6)
+    if thread.is_alive():
+        raise TimeoutError(f"no Dask handshake from {address} within {timeout:g} s")
+    if failure:
+        raise failure[0]
+
+
 def _visible_here(job: ClipJob, frames: int) -> bool:
     """True when this machine sees the clip's complete outputs (gammas.json with ``frames`` frames)."""
     import json
@@ -465,29 +535,44 @@ def run_on_cluster(
                     continue
                 progress(event, clip, ev.get("data") or {})
 
+        def settle(job: ClipJob, outcome: ClipOutcome) -> None:
+            outcome.source = str(job.source)  # as given here (the task saw it made absolute)
+            if progress is not None and job.name in running:
+                running.discard(job.name)
+                progress("end", job.name, {})
+            finished.add(job.name)
+            done(outcome)
+
         futures: dict[Any, ClipJob] = {}
         try:
             for job in jobs:
                 futures[runner.submit(job, spec, opts, overwrite, run=run)] = job
             order = {f: i for i, f in enumerate(futures)}
-            remaining = len(futures)
+            pending = set(futures)
             completed = as_completed(list(futures), loop=runner.client.loop)
-            while remaining:
+            no_worker_since: float | None = None
+            next_check = time.monotonic() + WORKER_CHECK_INTERVAL
+            while pending:
                 ready = completed.next_batch(block=False) if completed.has_ready() else []
                 drain()
                 if not ready:
+                    # Dask holds a task with no worker to run it forever: every worker dead means a batch that
+                    # never ends, so the clips not finished fail once none has been connected for the timeout.
+                    now = time.monotonic()
+                    if now >= next_check:
+                        next_check = now + WORKER_CHECK_INTERVAL
+                        no_worker_since = (no_worker_since or now) if runner.connected_workers() == 0 else None
+                        if no_worker_since is not None and now - no_worker_since >= runner.timeout:
+                            with contextlib.suppress(Exception):  # best effort: no worker runs them anyway
+                                runner.client.cancel(list(pending), force=True)
+                            for fut in sorted(pending, key=order.__getitem__):
+                                settle(futures[fut], _no_worker_outcome(runner, futures[fut]))
+                            return
                     time.sleep(0.1)
                     continue
                 for fut in sorted(ready, key=order.__getitem__):  # a batch of results: in job order
-                    remaining -= 1
-                    job = futures[fut]
-                    outcome = runner.outcome(job, fut)
-                    outcome.source = str(job.source)  # as given here (the task saw it made absolute)
-                    if progress is not None and job.name in running:
-                        running.discard(job.name)
-                        progress("end", job.name, {})
-                    finished.add(job.name)
-                    done(outcome)
+                    pending.discard(fut)
+                    settle(futures[fut], runner.outcome(futures[fut], fut))
         except BaseException:
             if futures:
                 runner.client.cancel(list(futures), force=True)
@@ -496,6 +581,15 @@ def run_on_cluster(
             if run:
                 with contextlib.suppress(Exception):
                     runner.client.unsubscribe_topic(PROGRESS_TOPIC)
+
+
+def _no_worker_outcome(runner: ClusterRunner, job: ClipJob) -> ClipOutcome:
+    """A clip left when no worker has been connected for the timeout: failed, in one line."""
+    why = (
+        f"no Dask worker has been connected to the scheduler at {runner.address} for {runner.timeout:g} s "
+        "(did they die?); the clip was not finished: start workers and rerun to resume"
+    )
+    return ClipOutcome(job.name, str(job.source), "failed", error=f"{job.source}: {why}")
 
 
 __all__ = ["PROGRESS_TOPIC", "ClusterRunner", "cluster_task", "cluster_timeout", "run_on_cluster"]

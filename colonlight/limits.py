@@ -29,6 +29,9 @@ def is_usable_fps(fps: float) -> bool:
     return 0 <= fps <= MAX_FPS and (fps == 0 or fps >= MIN_FPS)
 
 
+#: Longest side of ``enhanced.mp4`` (after padding odd sides to even): x264 refuses a larger frame, which a frame
+#: within the pixel cap can have (2 x 30000 is 0.06 Mpx).
+MAX_VIDEO_SIDE = 16384
 #: Environment variable that overrides :data:`DEFAULT_MAX_PIXELS` in the CLI and the service alike.
 MAX_PIXELS_ENV = "COLONLIGHT_MAX_PIXELS"
 #: Most copies of one source frame that the fps conversion may add for a timestamp gap (the frame repeated

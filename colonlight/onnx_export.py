@@ -21,7 +21,7 @@ import torch
 
 from . import __version__
 from .atomic import write_bytes_atomic, write_json_atomic
-from .checkpoint import LoadedWeights
+from .checkpoint import LoadedWeights, card_path
 from .correction import CURVE_KNOTS, CURVE_SLOPE_MAX, LOG_GAIN_SPAN, LOG_GAMMA_SPAN, SLOPE_OFFSET
 from .methods.rnn import CURVE_SUMMARY_AT, GAIN_MAX, GAIN_MIN, GAMMA_MAX, GAMMA_MIN, PRESAMPLE, SEED_FRAMES
 from .onnx_step import ExportError, StepSignature, compare_with_torch, cpu_session, export_model_bytes
@@ -206,6 +206,25 @@ def _default_gamma_rule(sig: StepSignature, head: str) -> dict[str, Any]:
     }
 
 
+def _check_targets(weights: LoadedWeights, out: Path) -> None:
+    """ExportError before anything is written if ``out`` or its sidecar would replace a checkpoint: the weights
+    exported, their card, or the card of any ``.safetensors`` beside (``-o wd/colonlight-rnn`` has the sidecar
+    ``wd/colonlight-rnn.json``, the card of ``wd/colonlight-rnn.safetensors``: the weights could not be loaded
+    after). Nor may either be a folder: the graph would be written without its sidecar."""
+    protected = [weights.path, card_path(weights.path)]
+    for target in (out, onnx_sidecar_path(out)):
+        if target.is_dir():
+            raise ExportError(f"{target}: a folder is in the way of the export")
+        if any(p.exists() and target.exists() and target.samefile(p) for p in protected):
+            raise ExportError(
+                f"{target}: would overwrite the checkpoint being exported or its card ({weights.path}); give another -o"
+            )
+        if target.suffix == ".json" and target.with_suffix(".safetensors").is_file():
+            raise ExportError(
+                f"{target}: would overwrite the model card of {target.with_suffix('.safetensors')}; give another -o"
+            )
+
+
 def export_onnx(weights: LoadedWeights, out: Path, size: int, check: bool = True) -> dict[str, Any]:
     """Write ``out`` (the step graph, weights inside) and its sidecar ``out.json``, both atomically.
 
@@ -215,6 +234,7 @@ def export_onnx(weights: LoadedWeights, out: Path, size: int, check: bool = True
     out = Path(out)
     if size < 8:
         raise ExportError(f"input size must be at least 8 pixels, got {size}")
+    _check_targets(weights, out)
     data, sig, described = export_model_bytes(weights, size)
     import onnx
 

@@ -44,6 +44,7 @@ from .limits import (
     DEFAULT_JPEG_QUALITY,
     MAX_FPS,
     MAX_JPEG_QUALITY,
+    MAX_VIDEO_SIDE,
     MIN_JPEG_QUALITY,
     is_usable_fps,
     max_gap_frames_setting,
@@ -394,6 +395,12 @@ def _enhance_clip(
             )
         raise InputError(f"{source}: only {len(head)} frame(s); at least {MIN_FRAMES} are needed")
     first_size = head[0].image.shape[:2]
+    if opts.video and max(side + side % 2 for side in first_size) > MAX_VIDEO_SIDE:  # else x264 fails, cryptically
+        stop.set()
+        raise InputError(
+            f"{source}: frames of {first_size[1]}x{first_size[0]} are too large for {VIDEO_FILE}: H.264 takes at "
+            f"most {MAX_VIDEO_SIDE} pixels a side (without the video, --no-video, its frames can be written)"
+        )
     video_fps = fps_out or _source_rate(head)
     sink = _FrameSink(out_dir, opts, video_fps)
     stream = content_stream(method, opts.content)

@@ -41,18 +41,26 @@ def enhance_frames(
     elif options:
         raise TypeError("options go with a method's name; a built Method already has its own")
     stream = content_stream(method, content)
+    size: tuple[int, ...] | None = None  # the clip's frame size (its first frame's)
     for index, frame in enumerate(frames):
-        _check(frame, index)
+        _check(frame, index, size)
+        size = size or frame.shape[:2]
         yield from stream.push(frame)
     yield from stream.flush()
 
 
-def _check(frame: np.ndarray, index: int) -> None:
-    """``check_frame``, its error naming frame ``index`` of the clip."""
+def _check(frame: np.ndarray, index: int, size: tuple[int, ...] | None) -> None:
+    """``check_frame``, and the clip's frame ``size`` (one call is one clip, whatever ``content``: with ``full`` a
+    frame of another size went on through the clip's state), the error naming frame ``index``."""
     try:
         check_frame(frame)
     except FrameShapeError as exc:
         raise FrameShapeError(f"frame {index}: {exc}") from None
+    if size is not None and frame.shape[:2] != size:
+        (h, w), (h0, w0) = frame.shape[:2], size
+        raise FrameShapeError(
+            f"frame {index}: frame is {w}x{h}, the clip started at {w0}x{h0}: one call is one clip of one frame size"
+        )
 
 
 __all__ = ["enhance_frames"]

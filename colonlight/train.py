@@ -466,19 +466,81 @@ def _save_state(
     write_json_atomic(path.with_suffix(".json"), meta)
 
 
+#: What a user can do about a training state that cannot be resumed.
+_STATE_HINT = "; delete it to resume from the epoch before, or give --no-resume or another --output"
+
+
+def _read_state_meta(path: Path) -> dict[str, Any]:
+    """The JSON half of a saved training state; InputError naming it if it cannot be read."""
+    try:
+        meta = json.loads(path.with_suffix(".json").read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path.with_suffix('.json')}: unreadable training state ({exc}){_STATE_HINT}") from None
+    if not isinstance(meta, dict):
+        raise InputError(f"{path.with_suffix('.json')}: unreadable training state (not a JSON object){_STATE_HINT}")
+    return meta
+
+
+#: Settings a resumed run may change: the remaining epochs and their learning rate (README: "resumed to 6 at
+#: --lr 5e-5"). Any other difference would make the card describe a run that never happened.
+_RESUMABLE_CHANGES = frozenset({"epochs", "lr"})
+
+
+def _check_resumable(path: Path, meta: dict[str, Any], cfg: TrainConfig) -> int:
+    """The epoch the state at ``path`` was saved after; InputError if this run cannot continue it: the state was
+    trained with other settings (a different head or input cannot even load it; a different size or objective
+    would leave a card claiming settings its first epochs never had), or it has more epochs than ``cfg.epochs``
+    (the weights written would be those of the later epoch, under a card saying ``cfg.epochs``)."""
+    try:
+        epoch = int(meta["epoch"])
+    except (KeyError, TypeError, ValueError):
+        raise InputError(f"{path.with_suffix('.json')}: unreadable training state (no epoch){_STATE_HINT}") from None
+    card = meta.get("card")
+    saved = card.get("training") if isinstance(card, dict) else None
+    if isinstance(saved, dict):  # states saved before cards were kept in them have nothing to compare
+        now = json.loads(json.dumps(asdict(cfg)))
+        diffs = [
+            f"--{key.replace('_', '-')} {saved[key]!r} (now {value!r})"
+            for key, value in now.items()
+            if key not in _RESUMABLE_CHANGES and key != "objective" and key in saved and saved[key] != value
+        ]
+        if not diffs and saved.get("objective", objective_text(cfg)) != objective_text(cfg):
+            diffs.append(f"--objective {saved['objective']!r} (now {objective_text(cfg)!r})")
+        if diffs:
+            raise InputError(
+                f"{path}: the run in {path.parent.parent} was trained with {', '.join(diffs)}; only --epochs and "
+                "--lr may change when it resumes: rerun with its settings, or give --no-resume or another --output"
+            )
+    if epoch > cfg.epochs:
+        raise InputError(
+            f"{path}: the run in {path.parent.parent} has trained {epoch} epochs, more than --epochs {cfg.epochs}: "
+            f"give --epochs {epoch} or more to go on, or --export-epoch N for the weights of an earlier epoch"
+        )
+    return epoch
+
+
 def _load_state(path: Path, net: GammaNet, opt: torch.optim.Optimizer) -> tuple[int, list[EpochRecord]]:
-    tensors = load_file(str(path.with_suffix(".safetensors")))
-    meta = json.loads(path.with_suffix(".json").read_text())
-    net.load_state_dict(_model_state(tensors))
-    state: dict[int, dict[str, Any]] = {}
-    for key, val in tensors.items():
-        if key.startswith("opt."):
-            _, pid, name = key.split(".", 2)
-            state.setdefault(int(pid), {})[name] = val
-    for pid, step in meta["steps"].items():
-        state.setdefault(int(pid), {})["step"] = torch.tensor(step)
-    opt.load_state_dict({"state": state, "param_groups": meta["param_groups"]})
-    return int(meta["epoch"]), [EpochRecord(**h) for h in meta["history"]]
+    """Restore ``net`` and ``opt`` from the state at ``path``; InputError naming it if it is damaged or was saved
+    by a network of another shape."""
+    meta = _read_state_meta(path)
+    try:
+        tensors = load_file(str(path.with_suffix(".safetensors")))
+        net.load_state_dict(_model_state(tensors))
+        state: dict[int, dict[str, Any]] = {}
+        for key, val in tensors.items():
+            if key.startswith("opt."):
+                _, pid, name = key.split(".", 2)
+                state.setdefault(int(pid), {})[name] = val
+        for pid, step in meta["steps"].items():
+            state.setdefault(int(pid), {})["step"] = torch.tensor(step)
+        opt.load_state_dict({"state": state, "param_groups": meta["param_groups"]})
+        return int(meta["epoch"]), [EpochRecord(**h) for h in meta["history"]]
+    except (OSError, SafetensorError, KeyError, TypeError, ValueError, AttributeError, RuntimeError) as exc:
+        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        damaged = path.with_suffix(
+            ".safetensors" if isinstance(exc, (OSError, SafetensorError, RuntimeError)) else ".json"
+        )
+        raise InputError(f"{damaged}: unreadable training state ({reason[:200]}){_STATE_HINT}") from None
 
 
 def latest_state(run_dir: Path) -> Path | None:
@@ -558,6 +620,9 @@ def train_model(
     card (``TrainResult.skipped``).
     """
     run_dir = Path(run_dir)
+    state_path = latest_state(run_dir) if resume else None
+    if state_path is not None:  # before any clip is read: a state this run cannot continue fails at once
+        _check_resumable(state_path, _read_state_meta(state_path), cfg)
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed)
     train_set, train_skipped = load_sequences(train_clips, cfg, on_skip)
@@ -586,7 +651,6 @@ def train_model(
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     start_epoch = 0
     history: list[EpochRecord] = []
-    state_path = latest_state(run_dir) if resume else None
     if state_path is not None:
         start_epoch, history = _load_state(state_path, net, opt)
         for group in opt.param_groups:  # the learning rate asked for now governs the remaining epochs
@@ -604,6 +668,11 @@ def train_model(
                 rng = np.random.default_rng([cfg.seed, epoch, step])
                 exposure = exposure_changes(len(ids), cfg.exposure_jitter, rng)
             loss = batch_loss(net, train_set, ids, cfg, cfg.anchor, exposure)
+            if not math.isfinite(loss.item()):  # stop before a NaN step: no state or weights of NaN are written
+                raise OptionError(
+                    f"training diverged at epoch {epoch + 1}, step {step + 1} (loss {loss.item()}): "
+                    f"try a lower --lr (this run: {cfg.lr:g})"
+                )
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()

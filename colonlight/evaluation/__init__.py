@@ -14,6 +14,7 @@ _EXPORTS: dict[str, str] = {
     "EvalClip": "clips",
     "find_clips": "clips",
     "make_benchmark": "clips",
+    "unique_clips": "clips",
     "ClipRecord": "records",
     "EvaluationResult": "records",
     "MethodClipResult": "records",
@@ -37,7 +38,7 @@ _EXPORTS: dict[str, str] = {
 }
 
 if TYPE_CHECKING:
-    from .clips import ClipRef, EvalClip, find_clips, make_benchmark
+    from .clips import ClipRef, EvalClip, find_clips, make_benchmark, unique_clips
     from .records import ClipRecord, EvaluationResult, MethodClipResult
     from .report import fmt, fmt_pair, success_cell, write_report
     from .requirements import missing_extras, require_extras
@@ -89,5 +90,6 @@ __all__ = [
     "success_cell",
     "summarize",
     "track_clip",
+    "unique_clips",
     "write_report",
 ]

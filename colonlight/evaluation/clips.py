@@ -298,7 +298,31 @@ def find_clips(inputs: Sequence[Path]) -> list[ClipRef]:
         refs += [
             ClipRef(job.name, job.source, "video") for job, folder in zip(jobs, folders, strict=True) if folder is None
         ]
-    return refs
+    return unique_clips(refs)
+
+
+def unique_clips(refs: Sequence[ClipRef]) -> list[ClipRef]:
+    """``refs`` with each clip once (the first time its path is named) and no two under one name (a later one
+    gets ``-2``, ``-3``, ...). A clip named twice (``a.mp4 a.mp4``, a folder and a clip in it, a benchmark
+    rendered inside an input folder) was evaluated once for each time, and weighed that many times in the
+    summary; two files of one name (``x/a.mp4``, ``y/a.mp4``) were two rows the report could not tell apart."""
+    out: list[ClipRef] = []
+    seen: set[Path] = set()
+    names: set[str] = set()
+    for ref in refs:
+        try:
+            key = ref.path.resolve()
+        except (OSError, RuntimeError):  # a link loop, a name too long: reported when the clip is loaded
+            key = ref.path.absolute()
+        if key in seen:
+            continue
+        seen.add(key)
+        name, n = ref.name, 2
+        while name in names:
+            name, n = f"{ref.name}-{n}", n + 1
+        names.add(name)
+        out.append(ref if name == ref.name else ClipRef(name, ref.path, ref.kind))
+    return out
 
 
 # ---------------------------------------------------------------------------------------- synthetic benchmark

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
-from ..atomic import write_bytes_atomic, write_json_atomic
+from ..atomic import json_bytes, publish, write_temporary
 from ..frames import encode_image
 from ..limits import DEFAULT_FPS
 from ..provenance import distribution_versions, library_versions
@@ -617,11 +617,25 @@ def write_report(result: EvaluationResult, out_dir: Path, command: str | None = 
         "html": out_dir / REPORT_HTML,
     }
     record = {"provenance": prov, **result.to_dict()}
-    write_json_atomic(paths["json"], clean_json(record))
-    write_bytes_atomic(paths["markdown"], markdown_report(result, rows).encode("utf-8"))
-    write_bytes_atomic(paths["csv"], _csv(rows))
-    write_bytes_atomic(paths["clips_csv"], _csv(clip_rows(result)))
-    write_bytes_atomic(paths["html"], html_report(result, rows, prov).encode("utf-8"))
+    # Every file is made, then written to a temporary, before any is renamed into place: written one by one, a
+    # Ctrl-C while the HTML's plots were drawn left the new results.json and tables beside the last run's
+    # report.html, one report set describing two evaluations.
+    contents = {
+        "json": json_bytes(clean_json(record)),
+        "markdown": markdown_report(result, rows).encode("utf-8"),
+        "csv": _csv(rows),
+        "clips_csv": _csv(clip_rows(result)),
+        "html": html_report(result, rows, prov).encode("utf-8"),
+    }
+    temporaries: dict[str, Path] = {}
+    try:
+        for kind, data in contents.items():
+            temporaries[kind] = write_temporary(paths[kind], data)
+        for kind in list(temporaries):
+            publish(temporaries.pop(kind), paths[kind])
+    finally:  # none is left behind by a failure or an interrupt
+        for tmp in temporaries.values():
+            tmp.unlink(missing_ok=True)
     return paths
 
 

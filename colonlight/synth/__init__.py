@@ -19,7 +19,7 @@ from ..discovery import SYNTH_FRAMES, SYNTH_VIDEO
 from .clip import SynthFrame, build_scene, generate_clip, render_frame
 from .config import PARAM_SPECS, SPLITS, Split, SynthConfig, parse_split
 from .overlay import BORDERS, OverlaySpec
-from .writer import GENERATOR_VERSION, decode_depth, encode_depth, make_dataset, write_clip
+from .writer import GENERATOR_VERSION, clip_complete, decode_depth, encode_depth, make_dataset, write_clip
 
 __all__ = [
     "BORDERS",
@@ -33,6 +33,7 @@ __all__ = [
     "SynthConfig",
     "SynthFrame",
     "build_scene",
+    "clip_complete",
     "decode_depth",
     "encode_depth",
     "generate_clip",

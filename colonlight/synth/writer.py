@@ -166,6 +166,8 @@ def write_clip(
     ``out_dir``. ``overlay`` draws a scope's border and on-screen text onto the frames and clean frames."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    # a clip rendered here before (another config) stops being one now: interrupted, no marker says "complete"
+    (out_dir / SYNTH_MARKER).unlink(missing_ok=True)
     scene = build_scene(cfg, seed)
     poses: list[str] = []
     per_frame: list[dict[str, Any]] = []
@@ -207,10 +209,12 @@ def write_clip(
         },
     )
     manifest = _manifest(cfg, seed, video=video, frames=frames, clean=clean, depth=depth)
+    drawn = overlay is not None and overlay.active
     if overlay is not None and overlay.active:
         fov, text = overlay.masks(cfg.height, cfg.width)
         _write_png(out_dir / "content.png", np.where(fov & ~text, 255, 0).astype(np.uint8))
         manifest["overlay"] = overlay.to_dict()
+    _remove_stale(out_dir, cfg.n_frames, video=video, frames=frames, clean=clean, depth=depth, content=drawn)
     write_json_atomic(out_dir / SYNTH_MARKER, manifest)
     return out_dir
 
@@ -239,25 +243,50 @@ def _manifest(cfg: SynthConfig, seed: int, **written: bool) -> dict[str, Any]:
     }
 
 
-def _is_complete(out_dir: Path, cfg: SynthConfig, seed: int, overlay: OverlaySpec | None = None) -> bool:
-    """True if ``out_dir`` holds a finished clip of exactly this config, seed and overlay (resume support)."""
+def _remove_stale(out_dir: Path, n_frames: int, **written: bool) -> None:
+    """Delete what an earlier clip rendered into ``out_dir`` left and this one did not overwrite: frames past
+    ``n_frames`` (a 3-frame clip over a 6-frame one kept frames 3..5, and readers of ``frames/`` took 6), and
+    the outputs this one does not write (``clip.mp4`` of another clip). Only names the writer itself makes."""
+    files = {SYNTH_VIDEO: "video", "content.png": "content"}
+    for name, flag in files.items():
+        if not written[flag]:
+            (out_dir / name).unlink(missing_ok=True)
+    for folder in (SYNTH_FRAMES, "clean", "depth"):
+        keep = n_frames if written[folder] else 0
+        for png in (out_dir / folder).glob("[0-9][0-9][0-9][0-9][0-9][0-9].png"):
+            if int(png.stem) >= keep:
+                png.unlink(missing_ok=True)
+
+
+def clip_complete(
+    out_dir: Path, cfg: SynthConfig, seed: int, overlay: OverlaySpec | None = None, **wanted: bool
+) -> bool:
+    """True if ``out_dir`` holds a finished clip of exactly this config, seed and overlay (resume support) with
+    every output of ``wanted`` that is True (``video=True``: its ``clip.mp4``; one rendered without is not)."""
     try:
         meta = json.loads((out_dir / SYNTH_MARKER).read_text())
     except (OSError, ValueError):
         return False
+    if not isinstance(meta, dict):
+        return False
     drawn = overlay.to_dict() if overlay is not None and overlay.active else None
+    written = meta.get("written")
+    if not isinstance(written, dict):
+        written = {}
     return bool(
         meta.get("seed") == seed
         and meta.get("config") == json.loads(json.dumps(cfg.to_dict()))
         and meta.get("overlay") == drawn
+        and all(written.get(name) for name, want in wanted.items() if want)
+        and (not wanted.get("video") or (out_dir / SYNTH_VIDEO).is_file())
     )
 
 
 def _dataset_job(args: tuple[Path, dict[str, Any], int, dict[str, Any]]) -> Path:
     out_dir, cfg_dict, seed, flags = args
     cfg = SynthConfig.from_dict(cfg_dict)
-    if _is_complete(out_dir, cfg, seed, flags.get("overlay")):
-        return out_dir
+    if clip_complete(out_dir, cfg, seed, flags.get("overlay"), video=flags.get("video", True)):
+        return out_dir  # (one rendered with --no-video is rendered again when its video is asked for)
     return write_clip(out_dir, cfg, seed, **flags)
 
 
