@@ -17,6 +17,7 @@ short clips padded by replication); ``ffmpeg_compatible=True`` reproduces them (
 from __future__ import annotations
 
 import math
+import numbers
 from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -418,7 +419,8 @@ class DeflickerMethod(Method):
     name = "deflicker"
 
     def __init__(self, size: int = 5, mode: str = "am", ffmpeg_compatible: bool = False) -> None:
-        if isinstance(size, bool) or int(size) != size or not MIN_SIZE <= int(size) <= MAX_SIZE:
+        finite = isinstance(size, numbers.Real) and not isinstance(size, bool) and math.isfinite(size)
+        if not finite or int(size) != size or not MIN_SIZE <= int(size) <= MAX_SIZE:  # int(nan) would raise
             raise OptionError(f"size must be an integer in {MIN_SIZE}..{MAX_SIZE}, got {size!r}")
         if mode not in MODES:
             raise OptionError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")

@@ -280,12 +280,16 @@ def test_ctrl_c_in_a_command_without_its_own_handler_says_how_to_go_on(tmp_path:
         text=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # a background shell ignores it
     )
-    deadline = time.monotonic() + 60
-    while not list((tmp_path / "s").glob("*/synth.json")):  # a clip is written: the interrupt lands in the command
-        assert proc.poll() is None and time.monotonic() < deadline
-        time.sleep(0.05)
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
+    try:
+        deadline = time.monotonic() + 60
+        while not list((tmp_path / "s").glob("*/synth.json")):  # a clip written: the interrupt lands in the command
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()  # no renderer left running if the test fails
+        proc.wait()
     assert proc.returncode == 130
     assert err.strip().splitlines()[-1] == "error: interrupted; rerun the same command to resume"
     assert "Traceback" not in err

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import colonlight
-from colonlight.errors import FrameShapeError
+from colonlight import create_method
+from colonlight.errors import FrameShapeError, OptionError
 
 
 def _frames(n: int = 10, size: tuple[int, int] = (48, 64)) -> list[np.ndarray]:
@@ -63,3 +64,10 @@ def test_any_array_layout_gives_the_bytes_of_its_contiguous_copy(method: str) ->
         assert [(r.frame.tobytes(), r.gamma) for r in out] == expected, name
         assert all(r.frame.shape == (48, 64, 3) and r.frame.dtype == np.uint8 for r in out), name
         assert all(np.array_equal(a, b) for a, b in zip(given, before, strict=True)), f"{name}: input changed"
+
+
+@pytest.mark.parametrize("size", [float("nan"), float("inf"), 4.5, True])
+def test_a_deflicker_window_that_is_not_a_whole_number_is_an_option_error(size: object) -> None:
+    """``int(nan)`` raised a bare ValueError before the size was checked."""
+    with pytest.raises(OptionError, match="size must be an integer"):
+        create_method("deflicker", size=size)
