@@ -141,6 +141,12 @@ def train_cmd(
         "change (|log gain| up to this, |log gamma| up to half), so that absolute brightness stops being a cue "
         "for the correction. An experiment: it did not keep steady clips from being darkened (README).",
     ),
+    frame_steps: str = typer.Option(
+        "1",
+        "--frame-steps",
+        help="Comma-separated frame steps k: each clip also gives windows of every k-th frame (1,2: the camera "
+        "and its lighting twice as fast as recorded, without rendering more). An experiment (README, session 27).",
+    ),
     inputs: str | None = typer.Option(
         None,
         "--inputs",
@@ -259,6 +265,7 @@ def train_cmd(
         raise typer.BadParameter("choose rnn, zerodce or zerodce++", param_hint="--method")
     # Imported here, not at the top: other commands (enhance above all) do without torch's training side and kornia.
     from colonlight import OptionError, TrainConfig, train_model
+    from colonlight.train import parse_frame_steps
 
     try:
         cfg = TrainConfig(
@@ -278,6 +285,7 @@ def train_cmd(
             temporal=temporal,
             exposure_jitter=exposure_jitter,
             inputs=inputs or "rgb",
+            frame_steps=parse_frame_steps(frame_steps),
         )
     except OptionError as exc:
         raise typer.BadParameter(str(exc)) from None

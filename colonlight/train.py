@@ -67,6 +67,7 @@ class TrainConfig:
     temporal: float = 0.0  # weight of the error's frame-to-frame change inside the supervised objectives
     exposure_jitter: float = 0.0  # span of the window-constant exposure change of "relative" (0: none)
     inputs: str = "rgb"  # "rgb" (the paper's), "rgb-log", "rgb-prev" or "delta" (colonlight.model)
+    frame_steps: tuple[int, ...] = (1,)  # windows also of every k-th frame: motion and lighting k times as fast
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
@@ -77,6 +78,10 @@ class TrainConfig:
             raise OptionError(f"inputs must be one of {', '.join(INPUT_CHANNELS)}, got {self.inputs!r}")
         if self.exposure_jitter < 0 or not math.isfinite(self.exposure_jitter):
             raise OptionError(f"exposure jitter must be finite and >= 0, got {self.exposure_jitter!r}")
+        steps = self.frame_steps
+        if not steps or any(isinstance(k, bool) or not isinstance(k, int) or k < 1 for k in steps):
+            raise OptionError(f"frame steps must be whole numbers >= 1, got {steps!r}")
+        self.frame_steps = tuple(sorted(set(steps)))
         if self.exposure_jitter and self.objective != "relative":
             raise OptionError("exposure jitter needs --objective relative (its targets change with the input)")
 
@@ -194,9 +199,25 @@ def load_sequences(
         if pair is not None:
             clean.append(pair)
     sequences = SequenceSet(
-        arrays, cfg.seq_len, cfg.stride, clean if cfg.supervised else None, relative=cfg.objective == "relative"
+        arrays,
+        cfg.seq_len,
+        cfg.stride,
+        clean if cfg.supervised else None,
+        relative=cfg.objective == "relative",
+        frame_steps=cfg.frame_steps,
     )
     return sequences, skipped
+
+
+def parse_frame_steps(text: str) -> tuple[int, ...]:
+    """``"1,2"`` -> ``(1, 2)``; OptionError naming the text if it is not comma-separated whole numbers >= 1."""
+    try:
+        steps = tuple(int(part) for part in text.split(","))
+    except ValueError:
+        raise OptionError(f"frame steps must be comma-separated whole numbers >= 1, got {text!r}") from None
+    if not steps or min(steps) < 1:
+        raise OptionError(f"frame steps must be comma-separated whole numbers >= 1, got {text!r}")
+    return steps
 
 
 def window_starts(n_frames: int, seq_len: int, stride: int) -> list[int]:
@@ -240,7 +261,10 @@ class SequenceSet:
     frames passed through ``start_curve`` of its first frame): consistency with the start, the paper's goal,
     taught with the truth. A window that starts undisturbed keeps its clean frames as targets, and a steady
     window's targets are its own frames, so a model taught this way leaves correctly lit video alone instead of
-    pulling every clip to the training set's average exposure."""
+    pulling every clip to the training set's average exposure.
+
+    ``frame_steps``: each clip also gives windows of every k-th frame for each k (the same clip seen k times as
+    fast: more of the scene's own brightening per frame, which the held-out family's faster camera shows)."""
 
     def __init__(
         self,
@@ -250,6 +274,7 @@ class SequenceSet:
         clean: Sequence[np.ndarray] | None = None,
         *,
         relative: bool = False,
+        frame_steps: Sequence[int] = (1,),
     ) -> None:
         self.clips = [torch.from_numpy(c) for c in clips]
         self.clean = [torch.from_numpy(c) for c in clean] if clean is not None else None
@@ -258,11 +283,16 @@ class SequenceSet:
         if relative and clean is None:
             raise ValueError("relative targets need clean frames")
         self.seq_len = seq_len
-        self.index = [(ci, s) for ci, c in enumerate(clips) for s in window_starts(len(c), seq_len, stride)]
+        self.index = [
+            (ci, s, k)
+            for k in frame_steps
+            for ci, c in enumerate(clips)
+            for s in window_starts(len(c) - (seq_len - 1) * (k - 1), seq_len, stride)
+        ]
         self.start_tables: list[torch.Tensor] | None = None
         if relative and clean is not None:
             self.start_tables = [
-                torch.from_numpy(start_curve(clean[ci][s], clips[ci][s])).long() for ci, s in self.index
+                torch.from_numpy(start_curve(clean[ci][s], clips[ci][s])).long() for ci, s, _ in self.index
             ]
 
     def __len__(self) -> int:
@@ -280,12 +310,12 @@ class SequenceSet:
             return self._stack(self.clean, ids)
         seqs = []
         for i in ids:
-            ci, s = self.index[i]
-            seqs.append(self.start_tables[i][self.clean[ci][s : s + self.seq_len].long()])
+            ci, s, k = self.index[i]
+            seqs.append(self.start_tables[i][self.clean[ci][s : s + (self.seq_len - 1) * k + 1 : k].long()])
         return torch.stack(seqs).float().div_(255.0)
 
     def _stack(self, clips: list[torch.Tensor], ids: Sequence[int]) -> torch.Tensor:
-        seqs = [clips[ci][s : s + self.seq_len] for ci, s in (self.index[i] for i in ids)]
+        seqs = [clips[ci][s : s + (self.seq_len - 1) * k + 1 : k] for ci, s, k in (self.index[i] for i in ids)]
         return torch.stack(seqs).float().div_(255.0)
 
 

@@ -293,3 +293,15 @@ def test_ctrl_c_in_a_command_without_its_own_handler_says_how_to_go_on(tmp_path:
     assert proc.returncode == 130
     assert err.strip().splitlines()[-1] == "error: interrupted; rerun the same command to resume"
     assert "Traceback" not in err
+
+
+def test_frame_steps_are_trained_on_and_recorded_and_a_bad_list_is_a_usage_error(clips: Path, tmp_path: Path) -> None:
+    """``--frame-steps 1,2`` over a 12-frame clip, windows of 4 at stride 4: 3 windows at step 1, 2 at step 2."""
+    out = tmp_path / "run"
+    code, output = colonlight("train", str(clips / "a.mp4"), "-o", str(out), *TINY, "--frame-steps", "2,1")
+    assert code == 0, output
+    training = json.loads((out / "colonlight-rnn.json").read_text())["training"]
+    assert training["frame_steps"] == [1, 2] and training["train_sequences"] == 5, training
+    for bad in ("0", "1,x", ""):
+        code, output = colonlight("train", str(clips / "a.mp4"), "-o", str(tmp_path / "x"), *TINY, "--frame-steps", bad)
+        assert code == 2 and "frame steps" in output, output

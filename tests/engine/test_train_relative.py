@@ -12,8 +12,17 @@ import torch
 
 from colonlight.correction import LOG_GAIN_SPAN
 from colonlight.curves import gain_gamma_lut
+from colonlight.errors import OptionError
 from colonlight.model import GammaNet
-from colonlight.train import SequenceSet, TrainConfig, batch_loss, exposure_changes, start_curve, train_model
+from colonlight.train import (
+    SequenceSet,
+    TrainConfig,
+    batch_loss,
+    exposure_changes,
+    parse_frame_steps,
+    start_curve,
+    train_model,
+)
 
 
 def _scene(rng: np.random.Generator, size: int = 32) -> np.ndarray:
@@ -111,3 +120,22 @@ def test_an_exposure_change_moves_a_windows_targets_with_its_frames() -> None:
         undo = GammaNet(head="gain-gamma").eval()
         undo.out_linear.bias.copy_(torch.tensor([0.0, math.atanh(math.log(1.5) / LOG_GAIN_SPAN)]))
         assert float(batch_loss(undo, data, [0], cfg, 0.0, darken)) > 0.05
+
+
+def test_frame_steps_add_windows_of_every_kth_frame_with_their_targets() -> None:
+    """Step 2 over a 9-frame clip with windows of 4: frames 0, 2, 4, 6 (one window: start 0 only, at stride 4),
+    beside the step-1 windows 0..3 and 4..7; the relative targets are the clean frames of the same frames."""
+    levels = np.arange(256, dtype=np.uint8)
+    clip = np.stack([np.repeat(np.roll(levels, 10 * i).reshape(16, 16, 1), 3, axis=2) for i in range(9)])
+    data = SequenceSet([clip], 4, 4, [clip.copy()], relative=True, frame_steps=(1, 2))
+    assert len(data) == 3
+    firsts = data.batch([0, 1, 2])[:, :, 0, 0, 0].mul(255).round().long().tolist()
+    assert firsts == [[(-10 * i) % 256 for i in frames] for frames in ([0, 1, 2, 3], [4, 5, 6, 7], [0, 2, 4, 6])]
+    assert torch.equal(data.clean_batch([2]), data.batch([2]))  # undisturbed: the targets are the frames
+    assert TrainConfig(frame_steps=(2, 1, 2)).frame_steps == (1, 2)
+    for bad in [(), (0,), (1, -2)]:
+        with pytest.raises(OptionError, match="frame steps"):
+            TrainConfig(frame_steps=bad)
+    assert parse_frame_steps("1,2") == (1, 2)
+    with pytest.raises(OptionError, match="'1,x'"):
+        parse_frame_steps("1,x")
