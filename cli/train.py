@@ -264,8 +264,7 @@ def train_cmd(
     if method != "rnn":
         raise typer.BadParameter("choose rnn, zerodce or zerodce++", param_hint="--method")
     # Imported here, not at the top: other commands (enhance above all) do without torch's training side and kornia.
-    from colonlight import OptionError, TrainConfig, train_model
-    from colonlight.train import parse_frame_steps
+    from colonlight import OptionError, TrainConfig, parse_frame_steps, train_model
 
     try:
         cfg = TrainConfig(

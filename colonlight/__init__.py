@@ -86,6 +86,7 @@ _EXPORTS: dict[str, str] = {
     "TrainConfig": "train",
     "TrainResult": "train",
     "export_epoch": "train",
+    "parse_frame_steps": "train",
     "train_model": "train",
     "network_threads": "tuning",
     "reuse_frame_memory": "tuning",
@@ -117,7 +118,7 @@ if TYPE_CHECKING:
     from .slam_layout import read_camera
     from .sources import clip_frames
     from .streaming import enhance_frames
-    from .train import EpochRecord, TrainConfig, TrainResult, export_epoch, train_model
+    from .train import EpochRecord, TrainConfig, TrainResult, export_epoch, parse_frame_steps, train_model
     from .tuning import network_threads, reuse_frame_memory, tune_for_clips
     from .video import VideoInfo, probe_video
 
@@ -194,6 +195,7 @@ __all__ = [
     "onnx_sidecar_path",
     "output_lock",
     "parse_content_mode",
+    "parse_frame_steps",
     "parse_model_size",
     "prepare_output",
     "probe_video",

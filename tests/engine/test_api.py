@@ -66,6 +66,7 @@ def test_all_is_sorted_and_pinned() -> None:
         "onnx_sidecar_path",
         "output_lock",
         "parse_content_mode",
+        "parse_frame_steps",
         "parse_model_size",
         "prepare_output",
         "probe_video",
