@@ -67,6 +67,7 @@ _EXPORTS: dict[str, str] = {
     "parse_model_size": "methods.rnn",
     "train_zerodce": "methods.zerodce_train",
     "OutputError": "outdir",
+    "TRAIN_LOCK": "outdir",
     "output_lock": "outdir",
     "prepare_output": "outdir",
     "GammaNet": "model",
@@ -112,7 +113,7 @@ if TYPE_CHECKING:
     from .methods.zerodce_train import train_zerodce
     from .model import GammaNet
     from .onnx_export import export_onnx, onnx_sidecar_path
-    from .outdir import OutputError, output_lock, prepare_output
+    from .outdir import TRAIN_LOCK, OutputError, output_lock, prepare_output
     from .pipeline import GAMMAS_FILE, VIDEO_FILE, ClipOptions, ClipResult, enhance_clip, iter_enhanced
     from .provenance import library_versions
     from .slam_layout import read_camera
@@ -162,6 +163,7 @@ __all__ = [
     "OptionError",
     "OutputError",
     "PathProblem",
+    "TRAIN_LOCK",
     "TrainConfig",
     "TrainResult",
     "VIDEO_FILE",

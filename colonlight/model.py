@@ -14,7 +14,7 @@ Three heads share that backbone (see :mod:`colonlight.correction` for what their
 * ``curve`` (colonlight's default model since session 19): ``linear(32->8)``, the slopes of a monotone tone
   curve per frame (``correction``), the family of the per-frame oracle curve.
 
-Four inputs (``INPUT_CHANNELS``), the first convolution's only difference (``delta`` also changes the head's
+Five inputs (``INPUT_CHANNELS``), the first convolution's only difference (``delta`` also changes the head's
 meaning):
 
 * ``rgb`` (the paper's, every shipped model before session 14's);
@@ -35,6 +35,12 @@ meaning):
   change the difference is motion alone. The state carries ``z_last`` and the last output frame (``y_last``);
   an all-zero ``y_last`` (the zero state an ONNX host starts with) means "no previous frame". Same heads as
   ``rgb-prev``. The shipped default's input since session 14 (README, the default model).
+* ``delta-rank``: ``delta`` plus one constant plane, ``RANK_SCALE x (1 - gamma)``, ``gamma`` being Goodman and
+  Kruskal's rank correlation of the green thumbnails (``RANK_GRID``) of the frame under the last correction and
+  the last output (``rank_change``). A change of lighting keeps the pixels' brightness order (a monotone curve)
+  and a change of the scene (a wall coming near, a fold filling the view) does not, so the plane tells the network
+  which of the two made the frame brighter; without it, it takes the scene's own brightening for an exposure
+  change (README, session 26). Same state and heads as ``delta``.
 """
 
 from __future__ import annotations
@@ -57,11 +63,17 @@ State = tuple[Tensor, ...]
 #: Head name -> number of outputs of ``out_linear``.
 HEAD_OUTPUTS = {"gamma": 1, "gain-gamma": 2, "curve": CURVE_SEGMENTS}
 #: Input name -> channels ``in_cnv`` reads.
-INPUT_CHANNELS = {"rgb": 3, "rgb-log": 6, "rgb-prev": 6, "delta": 6}
+INPUT_CHANNELS = {"rgb": 3, "rgb-log": 6, "rgb-prev": 6, "delta": 6, "delta-rank": 7}
 #: The ``delta`` input's difference channels are scaled up by this.
 DELTA_SCALE = 8.0
 #: Inputs that carry the last correction in the state (their head's zero output must be the identity).
-CARRIES_CORRECTION = ("rgb-prev", "delta")
+CARRIES_CORRECTION = ("rgb-prev", "delta", "delta-rank")
+#: Inputs whose head changes the last correction and whose state carries the last output frame.
+REFINES_CORRECTION = ("delta", "delta-rank")
+#: The ``delta-rank`` plane is this times ``1 - tau`` (0 for an unchanged order, 2 for a reversed one).
+RANK_SCALE = 4.0
+#: At most this many samples a side go into the rank correlation (``rank_change``): 256 pairs' worth of order.
+RANK_GRID = 16
 #: The darkest level the log channels tell apart (one 8-bit step); darker samples read as it.
 LOG_FLOOR = 1.0 / 255.0
 
@@ -69,6 +81,23 @@ LOG_FLOOR = 1.0 / 255.0
 def log_channels(frame: Tensor) -> Tensor:
     """``log(I)`` mapped so that ``LOG_FLOOR -> 0`` and ``1 -> 1`` (same shape as ``frame``)."""
     return 1.0 - torch.log(frame.clamp_min(LOG_FLOOR)) / math.log(LOG_FLOOR)
+
+
+def rank_change(a: Tensor, b: Tensor) -> Tensor:
+    """``1 - gamma``, Goodman and Kruskal's rank correlation of the green channels of ``a`` and ``b``
+    (``(B, 3, H, W)``), sampled on at most ``RANK_GRID`` x ``RANK_GRID`` pixels (a fixed stride, so any host
+    samples the same ones) -> ``(B,)``; 1 where either is flat.
+
+    Green, not a grey mix: a tone curve or a gain applied to each channel keeps each channel's order exactly, not a
+    mix's. ``gamma`` is ``(concordant - discordant) / (concordant + discordant)`` over the pairs of pixels, pairs
+    tied in either frame left out: a curve that clips pixels (ties) keeps the order of the rest, so it still reads
+    as no change, and no tie depends on the order a sort happens to pick (Kendall's tau without ties)."""
+    sy = max(1, a.shape[2] // RANK_GRID)
+    sx = max(1, a.shape[3] // RANK_GRID)
+    ga = a[:, 1, ::sy, ::sx].flatten(1)
+    gb = b[:, 1, ::sy, ::sx].flatten(1)
+    agree = torch.sign(ga[:, :, None] - ga[:, None, :]) * torch.sign(gb[:, :, None] - gb[:, None, :])
+    return 1.0 - agree.sum(dim=(1, 2)) / agree.abs().sum(dim=(1, 2)).clamp_min(1.0)
 
 
 class ConvLSTMCell(nn.Module):
@@ -140,7 +169,7 @@ class GammaNet(nn.Module):
     @property
     def state_names(self) -> tuple[str, ...]:
         """Names of the tensors of ``State``, in order (what an ONNX host feeds back from frame to frame)."""
-        if self.inputs == "delta":
+        if self.inputs in REFINES_CORRECTION:
             return ("h", "c", "z_last", "y_last")
         return ("h", "c", "z_last") if self.inputs == "rgb-prev" else ("h", "c")
 
@@ -166,7 +195,7 @@ class GammaNet(nn.Module):
         z = self.out_linear(x.mean(dim=(2, 3)))
         if self.head == "gamma":
             return torch.relu(z)[:, 0], (h, c)
-        if self.inputs == "delta" and last is not None:
+        if self.inputs in REFINES_CORRECTION and last is not None:
             z = last + z
             return z, (h, c, z, apply_head(frame, z, self.head))
         return z, ((h, c, z) if self.inputs == "rgb-prev" else (h, c))
@@ -182,7 +211,11 @@ class GammaNet(nn.Module):
             return torch.cat([frame, kept], dim=1)
         shown = state[3] if state is not None else torch.zeros_like(frame)
         seen = (shown.flatten(1).amax(dim=1) > 0).to(frame.dtype)[:, None, None, None]  # 0: no previous frame
-        return torch.cat([kept, DELTA_SCALE * seen * (shown - kept)], dim=1)
+        planes = [kept, DELTA_SCALE * seen * (shown - kept)]
+        if self.inputs == "delta-rank":
+            change = RANK_SCALE * seen[:, 0, 0, 0] * rank_change(kept, shown)
+            planes.append(change[:, None, None, None].expand(-1, 1, frame.shape[2], frame.shape[3]))
+        return torch.cat(planes, dim=1)
 
     def forward(self, frames: Tensor) -> Tensor:
         """A batch of sequences: ``(B, T, 3, H, W)`` in [0, 1] -> outputs ``(B, T)`` (``gamma`` head) or

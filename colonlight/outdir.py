@@ -31,6 +31,11 @@ from .discovery import OUTPUT_MARKER
 from .errors import ColonlightError
 
 
+#: The lock file of a ``colonlight train`` run folder (two runs into one folder would overwrite each other's
+#: epoch states and weights).
+TRAIN_LOCK = ".colonlight-train.lock"
+
+
 class OutputError(ColonlightError):
     """The output folder cannot be used: it is a file, read-only, not permitted, or held by another batch."""
 
@@ -91,11 +96,14 @@ def _holder(fd: int) -> str:
 
 
 @contextmanager
-def output_lock(out_root: Path) -> Iterator[Path]:
+def output_lock(out_root: Path, lock_name: str = OUTPUT_MARKER) -> Iterator[Path]:
     """Hold ``out_root`` (created if needed) for one batch; OutputError if it cannot be used, OutputBusy if another
-    process holds it. Yields the folder."""
+    process holds it. Yields the folder.
+
+    ``lock_name``: the lock file's name. A training run holds its folder under another name
+    (``TRAIN_LOCK``), so that its folder, which holds the rendered training clips, is not taken for an output."""
     out_root = prepare_output(out_root)
-    lock_path = out_root / OUTPUT_MARKER
+    lock_path = out_root / lock_name
     try:
         fd = os.open(lock_path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
     except OSError as exc:
@@ -145,4 +153,4 @@ def output_lock(out_root: Path) -> Iterator[Path]:
                 os.close(held[0])  # closing the last descriptor releases the flock
 
 
-__all__ = ["OutputBusy", "OutputError", "output_lock", "prepare_output"]
+__all__ = ["TRAIN_LOCK", "OutputBusy", "OutputError", "output_lock", "prepare_output"]

@@ -37,6 +37,7 @@ from .correction import apply_gain_gamma, apply_head, correct, gain_gamma_to_cur
 from .errors import InputError, OptionError
 from .limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE
 from .model import HEAD_OUTPUTS, INPUT_CHANNELS, GammaNet, parameter_count
+from .outdir import TRAIN_LOCK, output_lock
 from .sources import clip_frames
 
 SPECULAR_THRESHOLD = 0.7
@@ -66,7 +67,7 @@ class TrainConfig:
     consistency: float = 0.5  # weight of the paper's loss inside "hybrid"
     temporal: float = 0.0  # weight of the error's frame-to-frame change inside the supervised objectives
     exposure_jitter: float = 0.0  # span of the window-constant exposure change of "relative" (0: none)
-    inputs: str = "rgb"  # "rgb" (the paper's), "rgb-log", "rgb-prev" or "delta" (colonlight.model)
+    inputs: str = "rgb"  # "rgb" (the paper's), "rgb-log", "rgb-prev", "delta" or "delta-rank" (colonlight.model)
     frame_steps: tuple[int, ...] = (1,)  # windows also of every k-th frame: motion and lighting k times as fast
 
     def __post_init__(self) -> None:
@@ -595,6 +596,9 @@ INPUT_TEXT = {
     "rgb-prev": "; input: RGB and the frame under the previous frame's correction (6 channels; state h, c, z_last)",
     "delta": "; input: the frame under the previous frame's correction and its difference from the previous output "
     "frame (6 channels; state h, c, z_last, y_last); the head's outputs change the last correction (z = z_last + out)",
+    "delta-rank": "; input: the frame under the previous frame's correction, its difference from the previous output "
+    "frame and a plane of 1 - the rank correlation (Goodman-Kruskal gamma) of their green thumbnails (7 channels; state h, c, z_last, y_last); "
+    "the head's outputs change the last correction (z = z_last + out)",
 }
 
 
@@ -647,8 +651,38 @@ def train_model(
     A state is saved after every epoch in ``run_dir/checkpoints``; with ``resume`` a rerun continues from the last
     one. Runs are deterministic for a given seed, data and thread count. ``on_step(epoch, step, steps, loss)``
     reports progress; a clip that cannot be used is left out, its reason passed to ``on_skip`` and kept in the
-    card (``TrainResult.skipped``).
+    card (``TrainResult.skipped``). The run holds ``run_dir`` (``TRAIN_LOCK``): a second run into it while this
+    one trains is refused (OutputBusy) rather than overwriting this one's states and weights.
     """
+    with output_lock(Path(run_dir), TRAIN_LOCK):
+        return _train_model_held(
+            train_clips,
+            val_clips,
+            Path(run_dir),
+            cfg,
+            name=name,
+            card_extra=card_extra,
+            resume=resume,
+            on_step=on_step,
+            on_epoch=on_epoch,
+            on_skip=on_skip,
+        )
+
+
+def _train_model_held(
+    train_clips: Sequence[Path],
+    val_clips: Sequence[Path],
+    run_dir: Path,
+    cfg: TrainConfig,
+    *,
+    name: str,
+    card_extra: dict[str, Any] | None,
+    resume: bool,
+    on_step: ProgressFn | None,
+    on_epoch: Callable[[EpochRecord], None] | None,
+    on_skip: Callable[[str], None] | None,
+) -> TrainResult:
+    """:func:`train_model` once its folder is held."""
     run_dir = Path(run_dir)
     state_path = latest_state(run_dir) if resume else None
     if state_path is not None:  # before any clip is read: a state this run cannot continue fails at once

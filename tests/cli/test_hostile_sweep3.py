@@ -305,3 +305,71 @@ def test_frame_steps_are_trained_on_and_recorded_and_a_bad_list_is_a_usage_error
     for bad in ("0", "1,x", ""):
         code, output = colonlight("train", str(clips / "a.mp4"), "-o", str(tmp_path / "x"), *TINY, "--frame-steps", bad)
         assert code == 2 and "frame steps" in output, output
+
+
+def test_a_second_run_into_a_folder_another_run_trains_in_is_refused_and_the_first_goes_on(
+    clips: Path, tmp_path: Path
+) -> None:
+    """Two runs into one OUTPUT overwrote each other's epoch states and weights. A real run holds the folder; a
+    second is one line naming its pid, writes nothing, and once the first is killed (``kill -9``: the kernel
+    drops the lock) a rerun resumes from the epochs the first saved."""
+    out = tmp_path / "run"
+    script = "from colonlight_cli.main import run; run()"
+    argv = [sys.executable, "-c", script, "train", str(clips / "a.mp4"), "-o", str(out), *BASE, "--size", "16"]
+    first = subprocess.Popen([*argv, "--epochs", "100000"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 90
+        while not list((out / "checkpoints").glob("epoch_*.json")):  # it holds the folder and has saved an epoch
+            assert first.poll() is None and time.monotonic() < deadline, first.stderr.read() if first.stderr else ""
+            time.sleep(0.05)
+        code, output = colonlight("train", str(clips / "a.mp4"), "-o", str(out), *BASE, "--size", "16")
+        assert code == 1, output
+        lines = error_lines(output)
+        assert len(lines) == 1 and f"in use by colonlight pid {first.pid}" in lines[0] and str(out) in lines[0]
+        assert not (out / "colonlight-rnn.safetensors").exists()  # the second wrote no weights
+        assert first.poll() is None  # and the first trains on
+    finally:
+        first.kill()
+        first.wait()
+    saved = sorted((out / "checkpoints").glob("epoch_*.json"))[-1]
+    epochs = int(saved.stem.split("_")[1]) + 1
+    code, output = colonlight("train", str(clips / "a.mp4"), "-o", str(out), *BASE, "--size", "16", "--epochs", str(epochs))
+    assert code == 0, output
+    assert json.loads((out / "colonlight-rnn.json").read_text())["training"]["epochs"] == epochs
+
+
+def _has_loaded(pid: int, library: str) -> bool:
+    try:
+        return library in Path(f"/proc/{pid}/maps").read_text()
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="needs Linux's /proc to see the imports happen")
+@pytest.mark.parametrize("library", ["_multiarray_umath", "cv2"])
+def test_ctrl_c_while_the_command_loads_is_one_line_too(tmp_path: Path, library: str) -> None:
+    """A Ctrl-C in the first half second, while the command line's modules load, was a KeyboardInterrupt
+    traceback from an import; the console script's entry point (``colonlight_cli.entry``) catches it there too.
+    The interrupt is sent once the process has loaded ``library`` (numpy's core, then OpenCV), so it lands while
+    the command's modules load (or, on a fast machine, in the command, which says the same)."""
+    script = "from colonlight_cli.entry import run; run()"
+    size = ("--frames", "4", "--width", "48", "--height", "40")
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script, "synth", str(tmp_path / "s"), "-n", "5000", *size, "-j", "1"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # a background shell ignores it
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while not _has_loaded(proc.pid, library):
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.002)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    assert proc.returncode == 130 and err.strip().splitlines()[-1].startswith("error: interrupted"), err

@@ -33,6 +33,7 @@ def test_all_is_sorted_and_pinned() -> None:
         "OptionError",
         "OutputError",
         "PathProblem",
+        "TRAIN_LOCK",
         "TrainConfig",
         "TrainResult",
         "VIDEO_FILE",

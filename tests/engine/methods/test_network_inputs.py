@@ -1,7 +1,8 @@
 """The network's inputs beyond the paper's RGB: ``rgb-log`` (the frame beside its log intensity, in which a gain
 change is one shift everywhere), ``rgb-prev`` (the frame beside itself under the last frame's correction) and
 ``delta`` (the frame under the last correction beside its difference from the last output, the head changing the
-last correction). Each starts from an ``rgb`` checkpoint's first convolution and survives saving and loading."""
+last correction), and ``delta-rank`` (``delta`` plus how much the pixels' brightness order changed). Each starts
+from an ``rgb`` checkpoint's first convolution and survives saving and loading."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from colonlight.checkpoint import load_weights, save_weights
 from colonlight.correction import apply_head
 from colonlight.errors import CheckpointError, OptionError
 from colonlight.methods.rnn import RecurrentGammaMethod
-from colonlight.model import LOG_FLOOR, GammaNet, log_channels
+from colonlight.model import LOG_FLOOR, RANK_SCALE, GammaNet, log_channels, rank_change
 from colonlight.train import TrainConfig, initial_net, model_card
 
 from ...networks import random_head_weights
@@ -108,8 +109,48 @@ def test_a_delta_network_changes_its_last_correction_and_keeps_it_when_its_outpu
         GammaNet(head="gamma", inputs="delta")
 
 
+def test_rank_change_is_zero_under_a_lighting_change_and_large_under_a_change_of_scene() -> None:
+    torch.manual_seed(6)
+    frame = torch.rand(2, 3, 48, 40) * 0.9 + 0.05
+    relit = (frame**0.6 * 1.3).clamp_max(0.95)  # a tone curve and a gain: each channel's order kept
+    assert torch.allclose(rank_change(frame, relit), torch.zeros(2), atol=1e-6)
+    assert torch.allclose(rank_change(frame, 1.0 - frame), torch.full((2,), 2.0), atol=1e-6)
+    other = torch.rand(2, 3, 48, 40)
+    assert bool((rank_change(frame, other) > 0.8).all())
+    # pixels clipped in one frame are ties there: they tell nothing about order, and a flat frame tells nothing
+    assert bool(((relit == 0.95).float().mean() > 0.2).item())
+    flat = torch.full_like(frame, 0.5)
+    assert torch.allclose(rank_change(frame, flat), torch.ones(2), atol=1e-6)
+    # a small frame is sampled whole; a large one on a fixed grid, so the cost does not grow with the size
+    assert rank_change(frame[:, :, :4, :4], relit[:, :, :4, :4]).shape == (2,)
+
+
+def test_a_delta_rank_network_starts_as_its_delta_checkpoint_and_reads_the_rank_plane(tmp_path: Path) -> None:
+    torch.manual_seed(7)
+    delta = GammaNet(head="curve", inputs="delta").eval()
+    with torch.no_grad():
+        delta.out_linear.weight.normal_(0.0, 0.5)
+        delta.in_cnv.weight[:, 3:].normal_(0.0, 0.5)
+    path = tmp_path / "delta.safetensors"
+    save_weights(delta, path, {"name": "delta", "head": "curve", "inputs": "delta"})
+    net = initial_net(TrainConfig(init=str(path), head="curve", inputs="delta-rank", objective="relative")).eval()
+    clip = torch.rand(1, 6, 3, 32, 32)
+    with torch.no_grad():
+        assert torch.equal(net(clip), delta(clip))  # the plane's weights start at zero
+        net.in_cnv.weight[:, 6:].normal_(0.0, 0.5)
+        frame = clip[:, 0]
+        z, state = net.step(frame, None)
+        x = net._first_input(clip[:, 1], state, z)
+        kept = apply_head(clip[:, 1], z, "curve")
+        assert x.shape[1] == 7 and torch.allclose(x[:, 6], RANK_SCALE * rank_change(kept, state[3])[:, None, None])
+        assert torch.equal(net._first_input(frame, None, torch.zeros_like(z))[:, 6], torch.zeros(1, 32, 32))
+        assert not torch.allclose(net(clip), delta(clip))
+    save_weights(net, tmp_path / "rank.safetensors", {"name": "rank", "head": "curve", "inputs": "delta-rank"})
+    assert load_weights(tmp_path / "rank.safetensors").net.inputs == "delta-rank"
+
+
 def test_the_enhancement_record_names_the_input_only_when_it_is_not_the_papers(tmp_path: Path) -> None:
-    for inputs in ("rgb", "rgb-log", "rgb-prev", "delta"):
+    for inputs in ("rgb", "rgb-log", "rgb-prev", "delta", "delta-rank"):
         weights = random_head_weights("gain-gamma", tmp_path / f"{inputs}.safetensors", "2" * 64, inputs=inputs)
         params = RecurrentGammaMethod(weights=weights, device="cpu").parameters()
         assert params.get("inputs") == (None if inputs == "rgb" else inputs)
@@ -117,7 +158,13 @@ def test_the_enhancement_record_names_the_input_only_when_it_is_not_the_papers(t
 
 @pytest.mark.parametrize(
     ("inputs", "says"),
-    [("rgb", None), ("rgb-log", "log intensity"), ("rgb-prev", "z_last"), ("delta", "z = z_last + out")],
+    [
+        ("rgb", None),
+        ("rgb-log", "log intensity"),
+        ("rgb-prev", "z_last"),
+        ("delta", "z = z_last + out"),
+        ("delta-rank", "Goodman-Kruskal gamma"),
+    ],
 )
 def test_the_card_says_what_the_network_reads(inputs: str, says: str | None) -> None:
     cfg = TrainConfig(head="gain-gamma", inputs=inputs, objective="relative")
@@ -129,13 +176,13 @@ def test_the_card_says_what_the_network_reads(inputs: str, says: str | None) -> 
 def test_unknown_inputs_are_refused_in_one_line() -> None:
     with pytest.raises(OptionError, match="unknown inputs 'gray'"):
         GammaNet(inputs="gray")
-    with pytest.raises(OptionError, match="inputs must be one of rgb, rgb-log, rgb-prev, delta"):
+    with pytest.raises(OptionError, match="inputs must be one of rgb, rgb-log, rgb-prev, delta, delta-rank"):
         TrainConfig(inputs="gray")
 
 
 def test_the_papers_head_started_from_a_network_that_carries_a_correction_reads_rgb() -> None:
-    for inputs in ("rgb", "rgb-log", "rgb-prev", "delta"):
+    for inputs in ("rgb", "rgb-log", "rgb-prev", "delta", "delta-rank"):
         net = GammaNet(head="gain-gamma", inputs=inputs)
         assert net.inputs_for_head("gain-gamma") == inputs
-        assert net.inputs_for_head("gamma") == ("rgb" if inputs in ("rgb-prev", "delta") else inputs)
+        assert net.inputs_for_head("gamma") == ("rgb" if inputs in ("rgb-prev", "delta", "delta-rank") else inputs)
         GammaNet(head="gamma", inputs=net.inputs_for_head("gamma"))  # a network that can be built

@@ -215,6 +215,7 @@ def test_usage_and_input_errors_are_one_line(tmp_path: Path) -> None:
         ("curve", CURVE_SEGMENTS, "min(1, f(v / 255))", "out = min(1, f(in))", "rgb-prev"),
         ("curve", CURVE_SEGMENTS, "min(1, f(v / 255))", "out = min(1, f(in))", "rgb"),
         ("gain-gamma", 2, "min(1, gain * (v / 255) ^ gamma)", "out = min(1, gain * in ^ gamma)", "delta"),
+        ("curve", CURVE_SEGMENTS, "min(1, f(v / 255))", "out = min(1, f(in))", "delta-rank"),
     ],
 )
 def test_a_head_with_raw_outputs_exports_as_z_with_its_correction_and_runs_on_onnxruntime(
@@ -237,7 +238,8 @@ def test_a_head_with_raw_outputs_exports_as_z_with_its_correction_and_runs_on_on
         with torch.no_grad():  # the extra channels must matter for the comparison to test them
             weights.net.in_cnv.weight[:, 3:].normal_(0.0, 0.2)
     record = export_onnx(weights, tmp_path / "w.onnx", size=32)
-    state = {"rgb-prev": ["h", "c", "z_last"], "delta": ["h", "c", "z_last", "y_last"]}.get(inputs, ["h", "c"])
+    refines = ["h", "c", "z_last", "y_last"]
+    state = {"rgb-prev": ["h", "c", "z_last"], "delta": refines, "delta-rank": refines}.get(inputs, ["h", "c"])
     assert [o["name"] for o in record["outputs"]] == ["z", *(f"{n}_out" for n in state)]
     assert [i["name"] for i in record["inputs"]] == ["frame", *state]
     assert record["outputs"][0]["shape"] == [1, n_outputs] and record["seed_frames"]["count"] == 0
