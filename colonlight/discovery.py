@@ -238,7 +238,10 @@ def discover(
             source, problem = synthetic_clip(inp)
             found.append((source, _direct(inp)[1], problem))
         elif os.path.isdir(inp) and not is_image_folder(inp):
+            had = (len(found), len(out.problems))
             found.extend(walker.walk(inp))
+            if len(inputs) > 1 and (len(found), len(out.problems)) == had:  # alone, "no clips found" says it
+                out.problems.append(PathProblem(str(inp), f"{inp}: skipped: no clips in this folder", failed=False))
         else:  # a file, a frame folder, or a path that cannot be used (it fails when the clip runs)
             found.append(_direct(inp))
     if pattern:

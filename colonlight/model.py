@@ -70,8 +70,10 @@ DELTA_SCALE = 8.0
 CARRIES_CORRECTION = ("rgb-prev", "delta", "delta-rank")
 #: Inputs whose head changes the last correction and whose state carries the last output frame.
 REFINES_CORRECTION = ("delta", "delta-rank")
-#: The ``delta-rank`` plane is this times ``1 - tau`` (0 for an unchanged order, 2 for a reversed one).
-RANK_SCALE = 4.0
+#: The ``delta-rank`` plane is this times ``1 - gamma`` (0 for an unchanged order, 2 for a reversed one). Large:
+#: Adam moves each weight by about the same step, so at 4 the plane's weights (zero at the start of a fine-tune)
+#: stayed near zero after an epoch (README, session 28).
+RANK_SCALE = 16.0
 #: At most this many samples a side go into the rank correlation (``rank_change``): 256 pairs' worth of order.
 RANK_GRID = 16
 #: The darkest level the log channels tell apart (one 8-bit step); darker samples read as it.

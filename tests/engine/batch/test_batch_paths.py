@@ -219,6 +219,26 @@ def test_the_output_folder_inside_an_input_is_never_read_as_input(tmp_path: Path
     assert result.exit_code == 0 and set(manifest_of(out)) == {"c1"}, result.output
 
 
+def test_an_input_folder_without_clips_beside_others_is_one_skipped_line(tmp_path: Path) -> None:
+    """``enhance a/ b/`` with nothing in ``b/`` (a mistyped mount, a copy not yet done) went unremarked; one
+    line now says so, the manifest keeps it, and the clips of ``a/`` are enhanced (exit 0)."""
+    make_clip(tmp_path / "a" / "c1.mp4", n_frames=20, fps=25)
+    (tmp_path / "b" / "sub").mkdir(parents=True)
+    (tmp_path / "b" / "notes.txt").write_text("not a clip")
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["enhance", str(tmp_path / "a"), str(tmp_path / "b"), "-o", str(out), *GAMMA])
+    assert result.exit_code == 0, result.output
+    assert f"skipped {tmp_path / 'b'}: skipped: no clips in this folder" in result.output
+    doc = json.loads((out / "manifest.json").read_text())
+    assert set(manifest_of(out)) == {"c1"}
+    assert doc["problems"] == [
+        {"path": str(tmp_path / "b"), "error": f"{tmp_path / 'b'}: skipped: no clips in this folder", "status": "skipped"}
+    ]
+    # alone, the folder is the usual error, said once
+    result = runner.invoke(app, ["enhance", str(tmp_path / "b"), "-o", str(tmp_path / "out2"), *GAMMA])
+    assert result.exit_code == 1 and result.output.count("no clips") == 1, result.output
+
+
 def test_deep_and_looping_trees_end(tmp_path: Path) -> None:
     """A folder 1200 levels deep (deeper than Python's recursion limit) and a loop of folder links."""
     root = tmp_path / "videos"
