@@ -211,7 +211,9 @@ def train_cmd(
                 from colonlight import DEFAULT_WEIGHTS
 
                 init = str(DEFAULT_WEIGHTS)
-            if method == "rnn":  # --init is read now, even with --head and --inputs given: bad, it fails before any rendering
+            if (
+                method == "rnn"
+            ):  # --init is read now, even with --head and --inputs given: bad, it fails before any rendering
                 init_head, init_inputs = _init_design(init, head)
                 head, inputs = head or init_head, inputs or init_inputs
             train_clips = _clips(list(data or []))
@@ -269,7 +271,8 @@ def train_cmd(
                 return
             if method != "rnn":
                 raise typer.BadParameter("choose rnn, zerodce or zerodce++", param_hint="--method")
-            # Imported here, not at the top: other commands (enhance above all) do without torch's training side and kornia.
+            # Imported here, not at the top: other commands (enhance above all) do without torch's training side
+            # and kornia.
             from colonlight import OptionError, TrainConfig, parse_frame_steps, train_model
 
             try:
@@ -305,7 +308,9 @@ def train_cmd(
                 task = progress.add_task("epoch", total=None, loss=float("nan"))
 
                 def on_step(epoch: int, step: int, steps: int, loss: float) -> None:
-                    progress.update(task, description=f"epoch {epoch + 1}/{epochs}", total=steps, completed=step, loss=loss)
+                    progress.update(
+                        task, description=f"epoch {epoch + 1}/{epochs}", total=steps, completed=step, loss=loss
+                    )
 
                 def on_epoch(rec: EpochRecord) -> None:
                     val_txt = f"{rec.val_loss:.4f}" if rec.val_loss is not None else "-"
@@ -333,7 +338,6 @@ def train_cmd(
     except OutputError as exc:  # another run trains into OUTPUT, or OUTPUT cannot be used
         error_line(str(exc))
         raise typer.Exit(1) from None
-
 
 
 def _check_numbers(fps: float, lr: float, **weights: float) -> None:

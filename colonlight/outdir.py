@@ -30,7 +30,6 @@ from typing import Any
 from .discovery import OUTPUT_MARKER
 from .errors import ColonlightError
 
-
 #: The lock file of a ``colonlight train`` run folder (two runs into one folder would overwrite each other's
 #: epoch states and weights).
 TRAIN_LOCK = ".colonlight-train.lock"

@@ -596,9 +596,9 @@ INPUT_TEXT = {
     "rgb-prev": "; input: RGB and the frame under the previous frame's correction (6 channels; state h, c, z_last)",
     "delta": "; input: the frame under the previous frame's correction and its difference from the previous output "
     "frame (6 channels; state h, c, z_last, y_last); the head's outputs change the last correction (z = z_last + out)",
-    "delta-rank": "; input: the frame under the previous frame's correction, its difference from the previous output "
-    "frame and a plane of 1 - the rank correlation (Goodman-Kruskal gamma) of their green thumbnails (7 channels; state h, c, z_last, y_last); "
-    "the head's outputs change the last correction (z = z_last + out)",
+    "delta-rank": "; input: the frame under the previous frame's correction, its difference from the previous "
+    "output frame and a plane of 1 - the rank correlation (Goodman-Kruskal gamma) of their green thumbnails "
+    "(7 channels; state h, c, z_last, y_last); the head's outputs change the last correction (z = z_last + out)",
 }
 
 

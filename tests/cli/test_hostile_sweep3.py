@@ -17,6 +17,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -266,14 +267,13 @@ def test_demo_to_an_output_that_is_a_file_is_one_line(tmp_path: Path) -> None:
     assert afile.read_text() == "x"
 
 
-def test_ctrl_c_in_a_command_without_its_own_handler_says_how_to_go_on(tmp_path: Path) -> None:
-    """typer turns Ctrl-C into a silent exit 130; the console script says what happened, once."""
-
-    script = "from colonlight_cli.main import run; run()"
+def _interrupted_synth(folder: Path, ready: Callable[[int], bool]) -> tuple[int, str]:
+    """Exit code and stderr of ``colonlight synth`` (through the console script's entry point), sent SIGINT once
+    ``ready(pid)``."""
+    script = "from colonlight_cli.entry import run; run()"
     size = ("--frames", "4", "--width", "48", "--height", "40")
-    argv = [sys.executable, "-c", script, "synth", str(tmp_path / "s"), "-n", "5000", *size, "-j", "1"]
     proc = subprocess.Popen(
-        argv,
+        [sys.executable, "-c", script, "synth", str(folder), "-n", "5000", *size, "-j", "1"],
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -282,15 +282,23 @@ def test_ctrl_c_in_a_command_without_its_own_handler_says_how_to_go_on(tmp_path:
     )
     try:
         deadline = time.monotonic() + 60
-        while not list((tmp_path / "s").glob("*/synth.json")):  # a clip written: the interrupt lands in the command
+        while not ready(proc.pid):
             assert proc.poll() is None and time.monotonic() < deadline
-            time.sleep(0.05)
+            time.sleep(0.002)
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=60)
     finally:
         proc.kill()  # no renderer left running if the test fails
         proc.wait()
-    assert proc.returncode == 130
+    return proc.returncode, err
+
+
+def test_ctrl_c_in_a_command_without_its_own_handler_says_how_to_go_on(tmp_path: Path) -> None:
+    """typer turns Ctrl-C into a silent exit 130; the console script says what happened, once."""
+    folder = tmp_path / "s"
+    # a clip written: the interrupt lands in the command
+    code, err = _interrupted_synth(folder, lambda _pid: bool(list(folder.glob("*/synth.json"))))
+    assert code == 130
     assert err.strip().splitlines()[-1] == "error: interrupted; rerun the same command to resume"
     assert "Traceback" not in err
 
@@ -333,7 +341,9 @@ def test_a_second_run_into_a_folder_another_run_trains_in_is_refused_and_the_fir
         first.wait()
     saved = sorted((out / "checkpoints").glob("epoch_*.json"))[-1]
     epochs = int(saved.stem.split("_")[1]) + 1
-    code, output = colonlight("train", str(clips / "a.mp4"), "-o", str(out), *BASE, "--size", "16", "--epochs", str(epochs))
+    code, output = colonlight(
+        "train", str(clips / "a.mp4"), "-o", str(out), *BASE, "--size", "16", "--epochs", str(epochs)
+    )
     assert code == 0, output
     assert json.loads((out / "colonlight-rnn.json").read_text())["training"]["epochs"] == epochs
 
@@ -352,24 +362,6 @@ def test_ctrl_c_while_the_command_loads_is_one_line_too(tmp_path: Path, library:
     traceback from an import; the console script's entry point (``colonlight_cli.entry``) catches it there too.
     The interrupt is sent once the process has loaded ``library`` (numpy's core, then OpenCV), so it lands while
     the command's modules load (or, on a fast machine, in the command, which says the same)."""
-    script = "from colonlight_cli.entry import run; run()"
-    size = ("--frames", "4", "--width", "48", "--height", "40")
-    proc = subprocess.Popen(
-        [sys.executable, "-c", script, "synth", str(tmp_path / "s"), "-n", "5000", *size, "-j", "1"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # a background shell ignores it
-    )
-    try:
-        deadline = time.monotonic() + 60
-        while not _has_loaded(proc.pid, library):
-            assert proc.poll() is None and time.monotonic() < deadline
-            time.sleep(0.002)
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
-    finally:
-        proc.kill()
-        proc.wait()
+    code, err = _interrupted_synth(tmp_path / "s", lambda pid: _has_loaded(pid, library))
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
-    assert proc.returncode == 130 and err.strip().splitlines()[-1].startswith("error: interrupted"), err
+    assert code == 130 and err.strip().splitlines()[-1].startswith("error: interrupted"), err

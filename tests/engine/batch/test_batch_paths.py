@@ -232,7 +232,11 @@ def test_an_input_folder_without_clips_beside_others_is_one_skipped_line(tmp_pat
     doc = json.loads((out / "manifest.json").read_text())
     assert set(manifest_of(out)) == {"c1"}
     assert doc["problems"] == [
-        {"path": str(tmp_path / "b"), "error": f"{tmp_path / 'b'}: skipped: no clips in this folder", "status": "skipped"}
+        {
+            "path": str(tmp_path / "b"),
+            "error": f"{tmp_path / 'b'}: skipped: no clips in this folder",
+            "status": "skipped",
+        }
     ]
     # alone, the folder is the usual error, said once
     result = runner.invoke(app, ["enhance", str(tmp_path / "b"), "-o", str(tmp_path / "out2"), *GAMMA])
