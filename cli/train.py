@@ -211,9 +211,8 @@ def train_cmd(
                 from colonlight import DEFAULT_WEIGHTS
 
                 init = str(DEFAULT_WEIGHTS)
-            if (
-                method == "rnn"
-            ):  # --init is read now, even with --head and --inputs given: bad, it fails before any rendering
+            # --init is read now, even with --head and --inputs given: bad, it fails before any rendering
+            if method == "rnn":
                 init_head, init_inputs = _init_design(init, head)
                 head, inputs = head or init_head, inputs or init_inputs
             train_clips = _clips(list(data or []))

@@ -72,9 +72,10 @@ CARRIES_CORRECTION = ("rgb-prev", "delta", "delta-rank")
 REFINES_CORRECTION = ("delta", "delta-rank")
 #: The ``delta-rank`` plane is this times ``1 - gamma`` (0 for an unchanged order, 2 for a reversed one). Large:
 #: Adam moves each weight by about the same step, so at 4 the plane's weights (zero at the start of a fine-tune)
-#: stayed near zero after an epoch (README, session 28).
+#: stayed near zero after an epoch; at 16 they do too (README, session 28: the network does not take the cue up).
 RANK_SCALE = 16.0
-#: At most this many samples a side go into the rank correlation (``rank_change``): 256 pairs' worth of order.
+#: The rank correlation (``rank_change``) reads every ``(side // RANK_GRID)``-th pixel: 16 to 31 a side, so at
+#: most about 1000 samples and half a million pairs, whatever the network's size.
 RANK_GRID = 16
 #: The darkest level the log channels tell apart (one 8-bit step); darker samples read as it.
 LOG_FLOOR = 1.0 / 255.0
@@ -87,8 +88,8 @@ def log_channels(frame: Tensor) -> Tensor:
 
 def rank_change(a: Tensor, b: Tensor) -> Tensor:
     """``1 - gamma``, Goodman and Kruskal's rank correlation of the green channels of ``a`` and ``b``
-    (``(B, 3, H, W)``), sampled on at most ``RANK_GRID`` x ``RANK_GRID`` pixels (a fixed stride, so any host
-    samples the same ones) -> ``(B,)``; 1 where either is flat.
+    (``(B, 3, H, W)``), sampled every ``H // RANK_GRID`` rows and ``W // RANK_GRID`` columns (a fixed stride, so any
+    host samples the same pixels) -> ``(B,)``; 1 where either is flat.
 
     Green, not a grey mix: a tone curve or a gain applied to each channel keeps each channel's order exactly, not a
     mix's. ``gamma`` is ``(concordant - discordant) / (concordant + discordant)`` over the pairs of pixels, pairs
