@@ -202,141 +202,135 @@ def train_cmd(
     _check_numbers(fps, lr, consistency=consistency, temporal=temporal, exposure_jitter=exposure_jitter, anchor=anchor)
     _check_name(name)
     _check_output(output)
-    from colonlight import TRAIN_LOCK, OutputError, output_lock
+    from colonlight import TRAIN_LOCK, output_lock
+
+    # Held from the first clip rendered to the last weights written, released when the command ends (click closes
+    # the context); a folder another run holds is an OutputError, one line from the console script.
+    ctx.with_resource(output_lock(output, TRAIN_LOCK))
+    command = invocation(ctx)
+    if method == "rnn" and init == "default":
+        from colonlight import DEFAULT_WEIGHTS
+
+        init = str(DEFAULT_WEIGHTS)
+    if method == "rnn":  # --init is read now, even with --head and --inputs given: bad, it fails before any rendering
+        init_head, init_inputs = _init_design(init, head)
+        head, inputs = head or init_head, inputs or init_inputs
+    train_clips = _clips(list(data or []))
+    val_clips = _clips(list(val or []))
+    extra: dict[str, object] = {"command": command}
+    if synthetic:
+        train_clips += _synthetic_clips(
+            output,
+            synthetic,
+            synthetic_seed,
+            synthetic_frames,
+            "train",
+            synthetic_size,
+            synthetic_steady,
+            synthetic_occluders,
+            synthetic_clean_seeds,
+        )
+        extra["data"] = (
+            f"synthetic: {synthetic} clips x {synthetic_frames} frames rendered at {synthetic_size}px, "
+            f"seeds {synthetic_seed}..{synthetic_seed + synthetic - 1}, generator split 'train', "
+            f"about {synthetic_steady:.0%} of them with steady lighting (no disturbance)"
+            + (
+                f", about {synthetic_occluders:.0%} forced to have a close-occluder moment"
+                if synthetic_occluders
+                else ""
+            )
+            + (
+                f", about {synthetic_clean_seeds:.0%} with two undisturbed first frames"
+                if synthetic_clean_seeds
+                else ""
+            )
+        )
+        if synthetic_val and not val_clips:
+            val_clips = _synthetic_clips(
+                output,
+                synthetic_val,
+                synthetic_seed + synthetic,
+                synthetic_frames,
+                "val",
+                synthetic_size,
+                synthetic_steady,
+                synthetic_occluders,
+                synthetic_clean_seeds,
+            )
+            extra["validation_data"] = (
+                f"synthetic: {synthetic_val} clips, seeds {synthetic_seed + synthetic}.."
+                f"{synthetic_seed + synthetic + synthetic_val - 1}"
+            )
+    if not train_clips:
+        raise typer.BadParameter("give clips to train on, or --synthetic N")
+    if not val_clips and len(train_clips) > 1:
+        val_clips = [train_clips.pop()]
+    if method in ("zerodce", "zerodce++"):
+        _train_zerodce(train_clips, method, output, name, epochs, size, batch, lr, seed, fps, extra)
+        return
+    if method != "rnn":
+        raise typer.BadParameter("choose rnn, zerodce or zerodce++", param_hint="--method")
+    # Imported here, not at the top: other commands (enhance above all) do without torch's training side and kornia.
+    from colonlight import OptionError, TrainConfig, parse_frame_steps, train_model
 
     try:
-        with output_lock(output, TRAIN_LOCK):  # from the first clip rendered to the last weights written
-            command = invocation(ctx)
-            if method == "rnn" and init == "default":
-                from colonlight import DEFAULT_WEIGHTS
+        cfg = TrainConfig(
+            size=size,
+            seq_len=seq_len,
+            stride=stride,
+            batch=batch,
+            lr=lr,
+            epochs=epochs,
+            seed=seed,
+            fps=fps or None,
+            init=init,
+            anchor=anchor,
+            head=head or "gamma",
+            objective=objective,
+            consistency=consistency,
+            temporal=temporal,
+            exposure_jitter=exposure_jitter,
+            inputs=inputs or "rgb",
+            frame_steps=parse_frame_steps(frame_steps),
+        )
+    except OptionError as exc:
+        raise typer.BadParameter(str(exc)) from None
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("loss {task.fields[loss]:.4f}"),
+        TimeRemainingColumn(),
+        console=console,
+    ) as progress:
+        task = progress.add_task("epoch", total=None, loss=float("nan"))
 
-                init = str(DEFAULT_WEIGHTS)
-            # --init is read now, even with --head and --inputs given: bad, it fails before any rendering
-            if method == "rnn":
-                init_head, init_inputs = _init_design(init, head)
-                head, inputs = head or init_head, inputs or init_inputs
-            train_clips = _clips(list(data or []))
-            val_clips = _clips(list(val or []))
-            extra: dict[str, object] = {"command": command}
-            if synthetic:
-                train_clips += _synthetic_clips(
-                    output,
-                    synthetic,
-                    synthetic_seed,
-                    synthetic_frames,
-                    "train",
-                    synthetic_size,
-                    synthetic_steady,
-                    synthetic_occluders,
-                    synthetic_clean_seeds,
-                )
-                extra["data"] = (
-                    f"synthetic: {synthetic} clips x {synthetic_frames} frames rendered at {synthetic_size}px, "
-                    f"seeds {synthetic_seed}..{synthetic_seed + synthetic - 1}, generator split 'train', "
-                    f"about {synthetic_steady:.0%} of them with steady lighting (no disturbance)"
-                    + (
-                        f", about {synthetic_occluders:.0%} forced to have a close-occluder moment"
-                        if synthetic_occluders
-                        else ""
-                    )
-                    + (
-                        f", about {synthetic_clean_seeds:.0%} with two undisturbed first frames"
-                        if synthetic_clean_seeds
-                        else ""
-                    )
-                )
-                if synthetic_val and not val_clips:
-                    val_clips = _synthetic_clips(
-                        output,
-                        synthetic_val,
-                        synthetic_seed + synthetic,
-                        synthetic_frames,
-                        "val",
-                        synthetic_size,
-                        synthetic_steady,
-                        synthetic_occluders,
-                        synthetic_clean_seeds,
-                    )
-                    extra["validation_data"] = (
-                        f"synthetic: {synthetic_val} clips, seeds {synthetic_seed + synthetic}.."
-                        f"{synthetic_seed + synthetic + synthetic_val - 1}"
-                    )
-            if not train_clips:
-                raise typer.BadParameter("give clips to train on, or --synthetic N")
-            if not val_clips and len(train_clips) > 1:
-                val_clips = [train_clips.pop()]
-            if method in ("zerodce", "zerodce++"):
-                _train_zerodce(train_clips, method, output, name, epochs, size, batch, lr, seed, fps, extra)
-                return
-            if method != "rnn":
-                raise typer.BadParameter("choose rnn, zerodce or zerodce++", param_hint="--method")
-            # Imported here, not at the top: other commands (enhance above all) do without torch's training side
-            # and kornia.
-            from colonlight import OptionError, TrainConfig, parse_frame_steps, train_model
+        def on_step(epoch: int, step: int, steps: int, loss: float) -> None:
+            progress.update(task, description=f"epoch {epoch + 1}/{epochs}", total=steps, completed=step, loss=loss)
 
-            try:
-                cfg = TrainConfig(
-                    size=size,
-                    seq_len=seq_len,
-                    stride=stride,
-                    batch=batch,
-                    lr=lr,
-                    epochs=epochs,
-                    seed=seed,
-                    fps=fps or None,
-                    init=init,
-                    anchor=anchor,
-                    head=head or "gamma",
-                    objective=objective,
-                    consistency=consistency,
-                    temporal=temporal,
-                    exposure_jitter=exposure_jitter,
-                    inputs=inputs or "rgb",
-                    frame_steps=parse_frame_steps(frame_steps),
-                )
-            except OptionError as exc:
-                raise typer.BadParameter(str(exc)) from None
-            with Progress(
-                TextColumn("{task.description}"),
-                BarColumn(),
-                MofNCompleteColumn(),
-                TextColumn("loss {task.fields[loss]:.4f}"),
-                TimeRemainingColumn(),
-                console=console,
-            ) as progress:
-                task = progress.add_task("epoch", total=None, loss=float("nan"))
+        def on_epoch(rec: EpochRecord) -> None:
+            val_txt = f"{rec.val_loss:.4f}" if rec.val_loss is not None else "-"
+            progress.console.print(
+                f"epoch {rec.epoch}: train loss {rec.train_loss:.4f}, val loss {val_txt}, {rec.seconds:.0f} s"
+            )
 
-                def on_step(epoch: int, step: int, steps: int, loss: float) -> None:
-                    progress.update(
-                        task, description=f"epoch {epoch + 1}/{epochs}", total=steps, completed=step, loss=loss
-                    )
-
-                def on_epoch(rec: EpochRecord) -> None:
-                    val_txt = f"{rec.val_loss:.4f}" if rec.val_loss is not None else "-"
-                    progress.console.print(
-                        f"epoch {rec.epoch}: train loss {rec.train_loss:.4f}, val loss {val_txt}, {rec.seconds:.0f} s"
-                    )
-
-                try:
-                    result = train_model(
-                        train_clips,
-                        val_clips,
-                        output,
-                        cfg,
-                        name=name,
-                        card_extra=extra,
-                        resume=resume,
-                        on_step=on_step,
-                        on_epoch=on_epoch,
-                        on_skip=_skip_line,
-                    )
-                except OSError as exc:  # a disk that fills mid-run: the epochs saved so far stay, the rerun resumes
-                    _write_failed(exc, output)
-            console.print(f"weights: {result.weights}\ncard:    {result.weights.with_suffix('.json')}")
-            _exit_if_skipped(result.skipped, " (listed in the card)")
-    except OutputError as exc:  # another run trains into OUTPUT, or OUTPUT cannot be used
-        error_line(str(exc))
-        raise typer.Exit(1) from None
+        try:
+            result = train_model(
+                train_clips,
+                val_clips,
+                output,
+                cfg,
+                name=name,
+                card_extra=extra,
+                resume=resume,
+                on_step=on_step,
+                on_epoch=on_epoch,
+                on_skip=_skip_line,
+            )
+        except OSError as exc:  # a disk that fills mid-run: the epochs saved so far stay, the rerun resumes
+            _write_failed(exc, output)
+    console.print(f"weights: {result.weights}\ncard:    {result.weights.with_suffix('.json')}")
+    _exit_if_skipped(result.skipped, " (listed in the card)")
 
 
 def _check_numbers(fps: float, lr: float, **weights: float) -> None:

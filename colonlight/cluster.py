@@ -299,7 +299,10 @@ class ClusterRunner:
             ) from None
         except Exception as exc:  # noqa: BLE001 - e.g. the scheduler went away meanwhile
             raise ColonlightError(f"lost the Dask scheduler at {self.address}: {_one_line(exc)}") from None
-        return len(self.client.scheduler_info(n_workers=-1).get("workers", {}))
+        count = self.connected_workers()
+        if count is None:
+            raise ColonlightError(f"lost the Dask scheduler at {self.address} after a worker connected")
+        return count
 
     def connected_workers(self) -> int | None:
         """How many workers are connected now; ``None`` when the scheduler does not answer (its loss cancels the
