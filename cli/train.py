@@ -147,6 +147,13 @@ def train_cmd(
         help="Comma-separated frame steps k: each clip also gives windows of every k-th frame (1,2: the camera "
         "and its lighting twice as fast as recorded, without rendering more). An experiment (README, session 27).",
     ),
+    steady_weight: float = typer.Option(
+        1.0,
+        "--steady-weight",
+        help="With --objective restore|relative|hybrid: weight of the windows whose recorded frames are exactly "
+        "their clean frames (steady lighting, where the right output is the input) against the others' 1. "
+        "An experiment (README, session 30).",
+    ),
     inputs: str | None = typer.Option(
         None,
         "--inputs",
@@ -292,6 +299,7 @@ def train_cmd(
             exposure_jitter=exposure_jitter,
             inputs=inputs or "rgb",
             frame_steps=parse_frame_steps(frame_steps),
+            steady_weight=steady_weight,
         )
     except OptionError as exc:
         raise typer.BadParameter(str(exc)) from None

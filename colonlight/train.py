@@ -69,6 +69,7 @@ class TrainConfig:
     exposure_jitter: float = 0.0  # span of the window-constant exposure change of "relative" (0: none)
     inputs: str = "rgb"  # "rgb" (the paper's), "rgb-log", "rgb-prev", "delta" or "delta-rank" (colonlight.model)
     frame_steps: tuple[int, ...] = (1,)  # windows also of every k-th frame: motion and lighting k times as fast
+    steady_weight: float = 1.0  # weight of windows whose recorded frames are their clean ones (supervised only)
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
@@ -83,6 +84,10 @@ class TrainConfig:
         if not steps or any(isinstance(k, bool) or not isinstance(k, int) or k < 1 for k in steps):
             raise OptionError(f"frame steps must be whole numbers >= 1, got {steps!r}")
         self.frame_steps = tuple(sorted(set(steps)))
+        if not (math.isfinite(self.steady_weight) and self.steady_weight > 0):
+            raise OptionError(f"steady weight must be a finite number above 0, got {self.steady_weight!r}")
+        if self.steady_weight != 1.0 and not self.supervised:
+            raise OptionError("steady weight needs a supervised objective (it needs the clean frames to tell)")
         if self.exposure_jitter and self.objective != "relative":
             raise OptionError("exposure jitter needs --objective relative (its targets change with the input)")
 
@@ -265,7 +270,10 @@ class SequenceSet:
     pulling every clip to the training set's average exposure.
 
     ``frame_steps``: each clip also gives windows of every k-th frame for each k (the same clip seen k times as
-    fast: more of the scene's own brightening per frame, which the held-out family's faster camera shows)."""
+    fast: more of the scene's own brightening per frame, which the held-out family's faster camera shows).
+
+    ``undisturbed``: per window, with clean frames, whether its recorded frames are exactly its clean ones (a
+    steady clip, or the undisturbed start of one): the windows whose right output is the input itself."""
 
     def __init__(
         self,
@@ -290,6 +298,12 @@ class SequenceSet:
             for ci, c in enumerate(clips)
             for s in window_starts(len(c) - (seq_len - 1) * (k - 1), seq_len, stride)
         ]
+        self.undisturbed: list[bool] = []
+        if self.clean is not None:
+            self.undisturbed = [
+                torch.equal(self._window(self.clips, ci, s, k), self._window(self.clean, ci, s, k))
+                for ci, s, k in self.index
+            ]
         self.start_tables: list[torch.Tensor] | None = None
         if relative and clean is not None:
             self.start_tables = [
@@ -312,11 +326,21 @@ class SequenceSet:
         seqs = []
         for i in ids:
             ci, s, k = self.index[i]
-            seqs.append(self.start_tables[i][self.clean[ci][s : s + (self.seq_len - 1) * k + 1 : k].long()])
+            seqs.append(self.start_tables[i][self._window(self.clean, ci, s, k).long()])
         return torch.stack(seqs).float().div_(255.0)
 
+    def window_weights(self, ids: Sequence[int], steady_weight: float) -> torch.Tensor | None:
+        """``(B,)``: ``steady_weight`` for the undisturbed windows among ``ids``, 1 for the others (None when
+        every weight would be 1)."""
+        if steady_weight == 1.0 or not self.undisturbed:
+            return None
+        return torch.tensor([steady_weight if self.undisturbed[i] else 1.0 for i in ids])
+
+    def _window(self, clips: list[torch.Tensor], ci: int, s: int, k: int) -> torch.Tensor:
+        return clips[ci][s : s + (self.seq_len - 1) * k + 1 : k]
+
     def _stack(self, clips: list[torch.Tensor], ids: Sequence[int]) -> torch.Tensor:
-        seqs = [clips[ci][s : s + (self.seq_len - 1) * k + 1 : k] for ci, s, k in (self.index[i] for i in ids)]
+        seqs = [self._window(clips, ci, s, k) for ci, s, k in (self.index[i] for i in ids)]
         return torch.stack(seqs).float().div_(255.0)
 
 
@@ -326,24 +350,38 @@ def unclipped(frames: torch.Tensor) -> torch.Tensor:
 
 
 def restore_loss(
-    frames: torch.Tensor, clean: torch.Tensor, out: torch.Tensor, head: str, corrected: torch.Tensor | None = None
+    frames: torch.Tensor,
+    clean: torch.Tensor,
+    out: torch.Tensor,
+    head: str,
+    corrected: torch.Tensor | None = None,
+    weights: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Mean absolute difference between the corrected frames and the clean ones, over the samples the recorder
     did not clip. Every frame is a target: a model trained this way corrects from the first frame on (no seed
-    frames). ``corrected``: ``apply_head(frames, out, head)`` when the caller already has it."""
+    frames). ``corrected``: ``apply_head(frames, out, head)`` when the caller already has it; ``weights``:
+    ``(B,)``, each window's samples count that many times in the mean."""
     if corrected is None:
         corrected = apply_head(frames, out, head)
     keep = unclipped(frames)
+    if weights is not None:
+        keep = keep * weights.to(keep)[:, None, None, None, None]
     return ((corrected - clean).abs() * keep).sum() / keep.sum().clamp_min(1.0)
 
 
 def temporal_restore_loss(
-    frames: torch.Tensor, clean: torch.Tensor, out: torch.Tensor, head: str, corrected: torch.Tensor | None = None
+    frames: torch.Tensor,
+    clean: torch.Tensor,
+    out: torch.Tensor,
+    head: str,
+    corrected: torch.Tensor | None = None,
+    weights: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Mean over consecutive frames of |change of the mean brightness error| (corrected minus clean, over the
     samples unclipped in both frames). A per-frame L1 leaves the model free to guess each frame's level
     independently, and independent guesses flicker; this term asks that whatever error remains stays the same
-    from frame to frame, so the output flickers as the clean frames do and no more."""
+    from frame to frame, so the output flickers as the clean frames do and no more. ``weights``: ``(B,)``, as
+    for ``restore_loss`` (a weighted mean over windows)."""
     if frames.shape[1] < 2:
         return frames.new_zeros(())
     if corrected is None:
@@ -355,7 +393,11 @@ def temporal_restore_loss(
     denom = both.sum(dim=dims).clamp_min(1.0)
     now = (error[:, 1:] * both).sum(dim=dims) / denom
     before = (error[:, :-1] * both).sum(dim=dims) / denom
-    return (now - before).abs().mean()
+    change = (now - before).abs().mean(dim=1)
+    if weights is None:
+        return change.mean()
+    w = weights.to(change)
+    return (change * w).sum() / w.sum()
 
 
 def paper_loss_any_head(frames: torch.Tensor, out: torch.Tensor, head: str, window: int, anchor: float) -> torch.Tensor:
@@ -433,9 +475,10 @@ def batch_loss(
     if clean is None:  # the paper's objective, the one that needs no clean frames
         return paper_loss_any_head(x, out, cfg.head, cfg.ssim_window, anchor)
     corrected = apply_head(x, out, cfg.head)  # once for both terms
-    loss = restore_loss(x, clean, out, cfg.head, corrected)
+    weights = data.window_weights(ids, cfg.steady_weight)
+    loss = restore_loss(x, clean, out, cfg.head, corrected, weights)
     if cfg.temporal:
-        loss = loss + cfg.temporal * temporal_restore_loss(x, clean, out, cfg.head, corrected)
+        loss = loss + cfg.temporal * temporal_restore_loss(x, clean, out, cfg.head, corrected, weights)
     if cfg.objective == "hybrid":
         loss = loss + cfg.consistency * paper_loss_any_head(x, out, cfg.head, cfg.ssim_window, anchor)
     return loss
@@ -610,6 +653,11 @@ def objective_text(cfg: TrainConfig) -> str:
     restore = f"mean |corrected - clean| over input samples below {SATURATED} (every frame a target)"
     if cfg.temporal:
         restore += f"; plus {cfg.temporal} x mean |frame-to-frame change of the mean error (corrected - clean)|"
+    if cfg.steady_weight != 1.0:
+        restore += (
+            f"; windows whose recorded frames are exactly their clean frames (steady lighting) weigh "
+            f"{cfg.steady_weight:g} x in both terms"
+        )
     if cfg.objective == "paper":
         return paper
     if cfg.objective == "restore":
@@ -703,6 +751,7 @@ def _train_model_held(
     counts: dict[str, Any] = {
         "train_clips": len(train_clips) - len(train_skipped),
         "train_sequences": len(train_set),
+        "train_undisturbed_sequences": sum(train_set.undisturbed),
         "val_clips": len(val_clips) - len(val_skipped),
         "val_sequences": len(val_set),
     }

@@ -189,6 +189,35 @@ def test_train_on_synthetic_folders_reads_their_lossless_frames_beside_clean(tmp
     assert card["head"] == "gain-gamma" and card["training"]["objective"].startswith("mean |corrected - clean|")
 
 
+def test_steady_weight_from_the_command_line_is_trained_with_and_recorded(tmp_path: Path) -> None:
+    """Two steady synthetic clips (recorded frames are their clean ones; one trains, one validates): every
+    window is undisturbed, so the weight applies to all of them; the card records it; a weight of 0, or one with
+    the unsupervised objective (which has no clean frames to tell steady windows by), is a usage error before
+    anything is read."""
+    from colonlight_cli.main import app
+    from typer.testing import CliRunner
+
+    runner = CliRunner()
+    clips = tmp_path / "clips"
+    made = runner.invoke(
+        app, ["synth", str(clips), "-n", "2", "--frames", "8", "--width", "32", "--height", "32", "--steady", "1"]
+    )
+    assert made.exit_code == 0, made.output
+    common = ["--epochs", "1", "--size", "16", "--seq-len", "4", "--stride", "4", "--batch", "2", "--head", "curve"]
+    run = tmp_path / "run"
+    res = runner.invoke(
+        app, ["train", str(clips), "-o", str(run), *common, "--objective", "relative", "--steady-weight", "3"]
+    )
+    assert res.exit_code == 0, res.output
+    training = json.loads((run / "colonlight-rnn.json").read_text())["training"]
+    assert training["steady_weight"] == 3.0 and "weigh 3 x" in training["objective"], training
+    assert training["train_undisturbed_sequences"] == training["train_sequences"] == 2, training  # one clip validates
+    for extra in (["--objective", "relative", "--steady-weight", "0"], ["--steady-weight", "2"]):
+        res = runner.invoke(app, ["train", str(clips), "-o", str(tmp_path / "x"), *common, *extra])
+        assert res.exit_code == 2 and "steady weight" in res.output, res.output
+        assert not (tmp_path / "x" / "colonlight-rnn.json").exists()
+
+
 def test_a_clip_that_cannot_be_read_is_left_out_and_named_not_fatal(tmp_path: Path) -> None:
     """One unreadable video among the training clips costs that clip, not the run: its reason reaches the
     caller as it is found, and the card lists it; with no usable clip left the run is an InputError saying so."""

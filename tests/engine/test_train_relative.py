@@ -19,8 +19,11 @@ from colonlight.train import (
     TrainConfig,
     batch_loss,
     exposure_changes,
+    objective_text,
     parse_frame_steps,
+    restore_loss,
     start_curve,
+    temporal_restore_loss,
     train_model,
 )
 
@@ -139,3 +142,39 @@ def test_frame_steps_add_windows_of_every_kth_frame_with_their_targets() -> None
     assert parse_frame_steps("1,2") == (1, 2)
     with pytest.raises(OptionError, match="'1,x'"):
         parse_frame_steps("1,x")
+
+
+def test_undisturbed_windows_are_found_exactly_and_weighted_in_both_supervised_terms() -> None:
+    """Windows of 4 over 8 frames whose clean frames differ from the recorded ones only in frame 6: the first
+    window is undisturbed, the second is not. With weights (3, 1), mean errors of 0.05 (first) and 0.3 (second)
+    average (3 x 0.05 + 0.3) / 4 per sample, and frame-to-frame error changes of 0.1 (first) and 0 average
+    3 x 0.1 / 4 = 0.075; unweighted, (0.05 + 0.3) / 2 and 0.05."""
+    rng = np.random.default_rng(5)
+    clip = np.stack([_scene(rng, 16) for _ in range(8)])
+    clean = clip.copy()
+    clean[6, 0, 0, 0] ^= 1  # one sample of one frame: disturbed
+    data = SequenceSet([clip], 4, 4, [clean], relative=True)
+    assert data.undisturbed == [True, False]
+    assert data.window_weights([0, 1], 1.0) is None
+    assert data.window_weights([1, 0], 3.0).tolist() == [1.0, 3.0]
+    assert SequenceSet([clip], 4, 4).window_weights([0], 3.0) is None  # no clean frames: nothing to tell
+    frames = torch.full((2, 4, 3, 4, 4), 0.5)
+    target = frames.clone()
+    corrected = frames + torch.tensor([0.1, 0.3])[:, None, None, None, None]
+    corrected[0, 1::2] -= 0.1  # window 0: errors 0.1, 0, 0.1, 0 (mean 0.05, changes 0.1)
+    weights = torch.tensor([3.0, 1.0])
+    out = torch.zeros(2, 4, 8)
+    assert float(restore_loss(frames, target, out, "curve", corrected)) == pytest.approx((0.05 + 0.3) / 2)
+    assert float(restore_loss(frames, target, out, "curve", corrected, weights)) == pytest.approx((0.15 + 0.3) / 4)
+    assert float(temporal_restore_loss(frames, target, out, "curve", corrected)) == pytest.approx(0.05)
+    assert float(temporal_restore_loss(frames, target, out, "curve", corrected, weights)) == pytest.approx(0.075)
+
+
+def test_the_steady_weight_is_checked_and_recorded_in_the_objective() -> None:
+    for bad in (0.0, -1.0, math.nan, math.inf):
+        with pytest.raises(OptionError, match="steady weight"):
+            TrainConfig(objective="relative", steady_weight=bad)
+    with pytest.raises(OptionError, match="supervised"):
+        TrainConfig(objective="paper", steady_weight=2.0)
+    assert "weigh 4 x" in objective_text(TrainConfig(objective="relative", steady_weight=4.0))
+    assert "weigh" not in objective_text(TrainConfig(objective="relative"))
