@@ -92,7 +92,12 @@ def train_cmd(
     output: Path = typer.Option(
         Path("colonlight-train"), "--output", "-o", help="Run folder: checkpoints/, the weights and card."
     ),
-    val: list[Path] | None = typer.Option(None, "--val", help="Validation clip(s); default: the last clip of DATA."),
+    val: list[Path] | None = typer.Option(
+        None,
+        "--val",
+        help="Validation clip; repeat the option for more (--val a --val b; in --val a b, b is a training "
+        "clip). Default: the last clip of DATA.",
+    ),
     synthetic: int = typer.Option(0, "--synthetic", min=0, help="Also render this many synthetic training clips."),
     synthetic_seed: int = typer.Option(1000, "--synthetic-seed", min=0, help="Seed of the first synthetic clip."),
     synthetic_frames: int = typer.Option(100, "--synthetic-frames", min=12),
