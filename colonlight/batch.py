@@ -29,6 +29,7 @@ from typing import Any
 
 from . import __version__
 from .atomic import remove_stale_temporaries, write_json_atomic
+from .discovery import MANIFEST_FILE as MANIFEST_FILE  # the batch's API; the name discovery keeps clear of
 from .discovery import VIDEO_SUFFIXES, discover_clips  # noqa: F401 - re-exported (the batch's API)
 from .errors import ColonlightError
 from .jobs import (  # noqa: F401 - the job types and run_clip, re-exported (the batch's API)
@@ -47,7 +48,6 @@ from .pipeline import GAMMAS_FILE, ClipOptions, remove_unfinished_video
 from .tuning import network_threads, tune_for_clips
 from .worker_process import die_with_parent
 
-MANIFEST_FILE = "manifest.json"
 #: How names that are not valid UTF-8 appear in the manifest (and in every gammas.json): see atomic.json_bytes.
 PATH_ENCODING = "utf-8, surrogateescape (a byte 0xNN that is not UTF-8 is written as \\udcNN; os.fsencode restores it)"
 
@@ -85,7 +85,7 @@ class Manifest:
         try:
             for entry in json.loads(path.read_text(encoding="utf-8")).get("clips", []):
                 clips[entry["clip"]] = entry
-        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError):
             pass
         return Manifest(path, settings, clips)
 

@@ -80,7 +80,7 @@ def read_card(path: Path, digest: str) -> dict[str, Any]:
         return {}
     try:
         card: dict[str, Any] = json.loads(cp.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, RecursionError) as exc:  # RecursionError: JSON nested too deep to decode
         raise CheckpointError(f"{cp}: unreadable model card ({exc})") from exc
     if not isinstance(card, dict):
         raise CheckpointError(f"{cp}: unreadable model card (a JSON object expected, found {type(card).__name__})")

@@ -476,7 +476,7 @@ def _visible_here(job: ClipJob, frames: int) -> bool:
             record = json.loads((job.out_dir / GAMMAS_FILE).read_text(encoding="utf-8"))
             if record.get("frame_count") == frames:
                 return True
-        except (OSError, ValueError):
+        except (OSError, ValueError, RecursionError, AttributeError):
             pass
         if time.monotonic() > deadline:
             return False

@@ -32,6 +32,11 @@ _SIDE_SUFFIXES = frozenset([".json", ".txt", ".csv", ".md", ".yaml", ".yml", ".x
 #: The lock file every ``colonlight enhance`` output folder holds (see :mod:`colonlight.outdir`): a folder
 #: holding it is an output, never an input.
 OUTPUT_MARKER = ".colonlight.lock"
+#: The batch's record of every clip, beside the clip folders in the output folder (re-exported by batch).
+MANIFEST_FILE = "manifest.json"
+#: Names the output folder holds for itself: no clip's folder may take one (``manifest.json.mp4`` would make the
+#: folder ``OUT/manifest.json``, and the manifest could never be written again).
+RESERVED_NAMES = frozenset({MANIFEST_FILE, OUTPUT_MARKER})
 #: The file every synthetic clip folder holds (written last, see :mod:`colonlight.synth.writer`): such a folder
 #: is one clip, never searched for clips of its own (its ``clean/`` and ``depth/`` are ground truth, not clips).
 SYNTH_MARKER = "synth.json"
@@ -266,14 +271,16 @@ def _unique_names(found: Sequence[tuple[Path, Path, str | None]]) -> Iterator[tu
 
     Nor is a clip's folder ever inside another's: ``a.mp4`` beside a folder ``a/`` holding ``frames.mp4`` would
     put ``a/frames/`` (a clip) in ``a/`` (a clip, whose own frames go to ``a/frames/``), and clearing one clip's
-    temporaries would delete the other's as it writes them; the outer one takes its suffix (``a-mp4``)."""
+    temporaries would delete the other's as it writes them; the outer one takes its suffix (``a-mp4``). Nor does
+    a clip take a name the output folder keeps for itself (:data:`RESERVED_NAMES`): ``manifest.json.mp4`` becomes
+    ``manifest.json-mp4``, and a clip inside a folder so named fails, saying why."""
     # realpath, unlike Path.resolve, never raises on a link loop
     clips = [(src, rel.as_posix(), problem, os.path.realpath(src)) for src, rel, problem in found]
     sources: dict[str, set[str]] = {}
     for _, rel, _, real in clips:
         sources.setdefault(rel, set()).add(real)
-    # the folders that hold another clip's folder: no clip may be written there
-    holders = {parent.as_posix() for rel in sources for parent in PurePosixPath(rel).parents}
+    # the folders that hold another clip's folder, and the output folder's own files: no clip may be written there
+    holders = {parent.as_posix() for rel in sources for parent in PurePosixPath(rel).parents} | RESERVED_NAMES
     taken = holders | {rel for rel, reals in sources.items() if len(reals) == 1}  # kept as they are
     seen: set[tuple[str, str]] = set()
     for src, rel, problem, real in clips:
@@ -281,6 +288,12 @@ def _unique_names(found: Sequence[tuple[Path, Path, str | None]]) -> Iterator[tu
             continue
         seen.add((real, rel))
         name = rel
+        top = rel.split("/", 1)[0]
+        if top in RESERVED_NAMES and top != rel and problem is None:  # OUT/manifest.json/<clip>: a folder's name
+            problem = (
+                f"{src}: its output folder would be inside {top}, a name the output folder keeps for itself "
+                "(rename that folder)"
+            )
         if len(sources[rel]) > 1 or rel in holders:
             if src.suffix or synthetic_folder_of(src):
                 name = f"{rel}-{'synth' if synthetic_folder_of(src) else src.suffix.lstrip('.').lower()}"
@@ -298,7 +311,9 @@ def discover_clips(inputs: Sequence[Path], out_root: Path, pattern: str | None =
 
 
 __all__ = [
+    "MANIFEST_FILE",
     "OUTPUT_MARKER",
+    "RESERVED_NAMES",
     "SYNTH_CLIP_SOURCES",
     "SYNTH_FRAMES",
     "SYNTH_MARKER",

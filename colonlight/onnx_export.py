@@ -210,11 +210,16 @@ def _check_targets(weights: LoadedWeights, out: Path) -> None:
     """ExportError before anything is written if ``out`` or its sidecar would replace a checkpoint: the weights
     exported, their card, or the card of any ``.safetensors`` beside (``-o wd/colonlight-rnn`` has the sidecar
     ``wd/colonlight-rnn.json``, the card of ``wd/colonlight-rnn.safetensors``: the weights could not be loaded
-    after). Nor may either be a folder: the graph would be written without its sidecar."""
+    after). Nor may either be a folder: the graph would be written without its sidecar; nor a device, FIFO or
+    socket (``-o /dev/null``): the atomic rename would replace the node itself with a regular file."""
     protected = [weights.path, card_path(weights.path)]
     for target in (out, onnx_sidecar_path(out)):
         if target.is_dir():
             raise ExportError(f"{target}: a folder is in the way of the export")
+        if target.exists() and not target.is_file():
+            raise ExportError(
+                f"{target}: not a regular file (a device, FIFO or socket); the export writes files: give another -o"
+            )
         if any(p.exists() and target.exists() and target.samefile(p) for p in protected):
             raise ExportError(
                 f"{target}: would overwrite the checkpoint being exported or its card ({weights.path}); give another -o"
@@ -261,6 +266,6 @@ def read_sidecar(onnx_path: Path) -> dict[str, Any]:
     path = onnx_sidecar_path(onnx_path)
     try:
         record: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, RecursionError) as exc:
         raise ExportError(f"{path}: no readable sidecar ({exc})") from None
     return record

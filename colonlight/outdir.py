@@ -86,7 +86,7 @@ def _holder(fd: int) -> str:
     """Who holds the lock, from what the holder wrote into the lock file."""
     try:
         info: dict[str, Any] = json.loads(os.pread(fd, 4096, 0).decode("utf-8", "replace") or "{}")
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         info = {}
     if not isinstance(info, dict) or "pid" not in info:
         return "another colonlight process"

@@ -165,7 +165,9 @@ def complete_record(out_dir: Path, method: Method, opts: ClipOptions) -> dict[st
     """
     try:
         record: dict[str, Any] = json.loads((out_dir / GAMMAS_FILE).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):  # RecursionError: JSON nested too deep to decode
+        return None
+    if not isinstance(record, dict):
         return None
     if record.get("settings") != json.loads(json.dumps(settings_record(method, opts))):
         return None

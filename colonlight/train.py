@@ -548,7 +548,7 @@ def _read_state_meta(path: Path) -> dict[str, Any]:
     """The JSON half of a saved training state; InputError naming it if it cannot be read."""
     try:
         meta = json.loads(path.with_suffix(".json").read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, RecursionError) as exc:  # RecursionError: JSON nested too deep to decode
         raise InputError(f"{path.with_suffix('.json')}: unreadable training state ({exc}){_STATE_HINT}") from None
     if not isinstance(meta, dict):
         raise InputError(f"{path.with_suffix('.json')}: unreadable training state (not a JSON object){_STATE_HINT}")
@@ -854,7 +854,7 @@ def export_epoch(run_dir: Path, epoch: int, out: Path | None = None) -> TrainRes
     try:
         meta = json.loads(state.with_suffix(".json").read_text(encoding="utf-8"))
         tensors = load_file(str(state.with_suffix(".safetensors")))
-    except (OSError, ValueError, SafetensorError) as exc:
+    except (OSError, ValueError, RecursionError, SafetensorError) as exc:
         raise InputError(f"{state}: unreadable training state ({exc})") from exc
     if not isinstance(meta, dict) or not isinstance(meta.get("card"), dict):
         raise InputError(f"{state}.json: saved by an older colonlight, it has no model card to export")

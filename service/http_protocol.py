@@ -9,6 +9,9 @@ headers is answered 408 with the service's JSON error body and the connection is
 is closed, as an idle keep-alive connection is. The deadline ends when the headers are complete: a slow body is
 the upload's own timeouts' business (``COLONLIGHT_UPLOAD_IDLE_SECONDS``).
 
+A request h11 cannot parse (a ``Content-Length`` that is no number or past any size, both ``Content-Length`` and
+``Transfer-Encoding``, headers too long) is answered 400 with the same JSON error body, not uvicorn's plain text.
+
 ``colonlight serve`` passes the class made by :func:`header_deadline_protocol` to ``uvicorn.run(http=...)``.
 """
 
@@ -27,20 +30,32 @@ from .settings import DEFAULT_HEADER_TIMEOUT_S
 _CODE = "header_timeout"
 
 
-def _response_408(seconds: float) -> bytes:
-    body = json.dumps(
-        {
-            "status": 408,
-            "code": _CODE,
-            "message": f"the request headers were not complete within {seconds:g} s "
-            "(COLONLIGHT_HEADER_TIMEOUT_SECONDS)",
-        }
-    ).encode()
+def _json_response(status: int, reason: str, code: str, message: str) -> bytes:
+    """A complete HTTP/1.1 response carrying the service's JSON error body; the connection closes after it."""
+    body = json.dumps({"status": status, "code": code, "message": message}).encode()
     head = (
-        "HTTP/1.1 408 Request Timeout\r\ncontent-type: application/json\r\nconnection: close\r\n"
+        f"HTTP/1.1 {status} {reason}\r\ncontent-type: application/json\r\nconnection: close\r\n"
         f"content-length: {len(body)}\r\n\r\n"
     ).encode()
     return head + body
+
+
+def _response_408(seconds: float) -> bytes:
+    return _json_response(
+        408,
+        "Request Timeout",
+        _CODE,
+        f"the request headers were not complete within {seconds:g} s (COLONLIGHT_HEADER_TIMEOUT_SECONDS)",
+    )
+
+
+#: the answer to a request h11 cannot parse (uvicorn's own is text/plain "Invalid HTTP request received.")
+_RESPONSE_400 = _json_response(
+    400,
+    "Bad Request",
+    "bad_request",
+    "malformed HTTP request: its request line, headers or framing (Content-Length, Transfer-Encoding) are invalid",
+)
 
 
 class HeaderDeadlineProtocol(H11Protocol):
@@ -74,6 +89,13 @@ class HeaderDeadlineProtocol(H11Protocol):
             self.logger.warning("request headers not complete within %g s: closing with 408", self.header_timeout)
             self.transport.write(_response_408(self.header_timeout))
         self.transport.close()
+
+    def send_400_response(self, msg: str) -> None:
+        """A request h11 refused (``msg``: uvicorn's text, already logged): the JSON error, then close."""
+        self._cancel_header_deadline()
+        if self.transport is not None and not self.transport.is_closing():
+            self.transport.write(_RESPONSE_400)
+            self.transport.close()
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)

@@ -54,7 +54,7 @@ class ResultCache:
         path = self.folder / kind / f"{content_key(kind, arrays, params)}.json"
         try:
             value: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
+        except (OSError, ValueError, RecursionError):
             pass
         else:
             self.hits += 1

@@ -181,7 +181,7 @@ def load_synthetic_clip(
         intr = json.loads((folder / "intrinsics.json").read_text(encoding="utf-8"))
         cfg = meta["config"]
         fps = float(cfg.get("fps", DEFAULT_FPS))
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
         raise InputError(f"{folder}: incomplete synthetic clip ({exc})") from exc
     if (folder / SYNTH_FRAMES).is_dir():
         images = [read_image(p) for p in list_image_frames(folder / SYNTH_FRAMES)[:max_frames]]
@@ -212,7 +212,7 @@ def load_synthetic_clip(
         per_frame = [dict(f) for f in lighting["frames"]][: len(frames)]
         occluder = [bool(f.get("close_occluder")) for f in per_frame]
         camera_gamma = lighting.get("camera_gamma")
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError):
         per_frame = None
     return EvalClip(
         name=name or folder.name,
@@ -353,9 +353,11 @@ def benchmark_config(
 def _is_complete(folder: Path, cfg: SynthConfig, seed: int) -> bool:
     try:
         meta = json.loads((folder / SYNTH_MARKER).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return False
-    return bool(meta.get("seed") == seed and meta.get("config") == json.loads(json.dumps(cfg.to_dict())))
+    return isinstance(meta, dict) and bool(
+        meta.get("seed") == seed and meta.get("config") == json.loads(json.dumps(cfg.to_dict()))
+    )
 
 
 def _render_job(args: tuple[Path, dict[str, Any], int]) -> Path:

@@ -265,7 +265,7 @@ def clip_complete(
     every output of ``wanted`` that is True (``video=True``: its ``clip.mp4``; one rendered without is not)."""
     try:
         meta = json.loads((out_dir / SYNTH_MARKER).read_text())
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return False
     if not isinstance(meta, dict):
         return False

@@ -210,7 +210,7 @@ class StreamSession:
     def parse_text(text: str) -> dict[str, Any]:
         try:
             value = json.loads(text)
-        except ValueError:
+        except (ValueError, RecursionError):  # RecursionError: nested too deep to decode
             raise FrameError(f"a text message must be a JSON object, got {text[:60]!r}") from None
         if not isinstance(value, dict) or not isinstance(value.get("type"), str):
             raise FrameError('a text message must be a JSON object with a "type" ("start", "frame" or "end")')
@@ -357,7 +357,7 @@ def start_key(message: dict[str, Any]) -> str | None:
     """The ``api_key`` of a first message that is a JSON start message, else None."""
     try:
         value = json.loads(message.get("text") or "null")
-    except ValueError:
+    except (ValueError, RecursionError):
         return None
     key = value.get("api_key") if isinstance(value, dict) and value.get("type") == "start" else None
     return key if isinstance(key, str) else None

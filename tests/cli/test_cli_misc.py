@@ -116,6 +116,13 @@ def test_train_command_on_synthetic_clips(tmp_path: Path) -> None:
     missing = runner.invoke(app, ["train", "-o", str(tmp_path / "run"), "--export-epoch", "2"])
     assert missing.exit_code == 1 and "no saved state for epoch 2" in missing.output
     assert "Traceback" not in missing.output and len(missing.output.strip().splitlines()) == 1
+    state = tmp_path / "run" / "checkpoints" / "epoch_001.json"
+    kept = state.read_bytes()
+    state.write_bytes(b"[" * 100_000)  # nested past the JSON decoder's depth: a RecursionError, not a ValueError
+    deep = runner.invoke(app, ["train", "-o", str(tmp_path / "run"), "--export-epoch", "1"])
+    assert deep.exit_code == 1 and "unreadable training state" in deep.output, deep.output
+    assert "Traceback" not in deep.output and len(deep.output.strip().splitlines()) == 1
+    state.write_bytes(kept)
     out = runner.invoke(
         app,
         [

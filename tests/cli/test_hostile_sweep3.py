@@ -96,18 +96,19 @@ def test_a_resume_with_other_settings_or_fewer_epochs_is_refused_and_changes_not
     [
         ("truncate", "epoch_002.safetensors", "unreadable training state (Error while deserializing header"),
         ("list", "epoch_002.json", "unreadable training state (not a JSON object)"),
+        ("deep", "epoch_002.json", "unreadable training state (maximum recursion depth"),
     ],
 )
 def test_a_damaged_training_state_is_one_line(run: Path, clips: Path, tmp_path: Path, damage: str, names: str,
                                               says: str) -> None:  # fmt: skip
-    """A state cut short (a copy of the run interrupted) or not a JSON object was a SafetensorError or
-    TypeError traceback on resume."""
+    """A state cut short (a copy of the run interrupted), not a JSON object or nested too deep for the JSON
+    decoder was a SafetensorError, TypeError or RecursionError traceback on resume."""
     copy = tmp_path / "run"
     for rel, data in snapshot(run).items():
         (copy / rel).parent.mkdir(parents=True, exist_ok=True)
         (copy / rel).write_bytes(data)
     damaged = copy / "checkpoints" / names
-    damaged.write_bytes(damaged.read_bytes()[:100] if damage == "truncate" else b"[]")
+    damaged.write_bytes({"truncate": damaged.read_bytes()[:100], "list": b"[]", "deep": b"[" * 100_000}[damage])
     code, output = colonlight("train", str(clips / "a.mp4"), "-o", str(copy), "--epochs", "3", "--size", "16", *BASE)
     assert code == 1, output
     lines = error_lines(output)
