@@ -156,6 +156,8 @@ class StreamReader:
         last_rel: int | None = None
         last_dur = frame_ticks
         count = 0  # source frames of this segment
+        previous: float | None = None  # perf_counter of this connection's last decoded frame
+        ending = False  # the source went silent for the timeout: what still comes out is its tail, not a lag
 
         def hand_over(choices: list[Choice]) -> None:
             for c in choices:
@@ -203,8 +205,13 @@ class StreamReader:
                 if self.realtime:
                     self._pace(time_s)
                 now = time.perf_counter()
-                self._last_arrival = now
-                self._track_lag(time_s, now)
+                # After --timeout s of silence the demuxer gives up, and only then releases the frames it and the
+                # decoder still held (MPEG-TS completes a packet when the next one starts): late because the
+                # source stopped, not because the machine fell behind.
+                ending = ending or (previous is not None and now - previous >= self.timeout_s)
+                previous = self._last_arrival = now
+                if not ending:
+                    self._track_lag(time_s, now)
                 held[count] = _Held(frame, time_s, time.time(), now)
                 count += 1
                 self.summary.frames_decoded += 1
