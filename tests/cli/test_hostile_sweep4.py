@@ -9,13 +9,12 @@ from __future__ import annotations
 import json
 import os
 import stat
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from ..media import make_clip, needs_ffmpeg
+from .test_hostile_sweep2 import colonlight
 
 pytestmark = [needs_ffmpeg, pytest.mark.timeout(300)]
 
@@ -23,23 +22,6 @@ GAMMA = ("--method", "gamma", "-q", "-j", "1")
 SHIPPED = Path(__file__).resolve().parents[2] / "colonlight" / "weights" / "colonlight-rnn"
 #: deeper than Python's recursion limit: json.loads raises RecursionError, not ValueError
 DEEP = "[" * 5000 + "]" * 5000
-
-
-def colonlight(*args: str) -> tuple[int, str]:
-    """Run ``colonlight ARGS`` as a real process; its exit code and its output (stdout and stderr), checked to
-    hold no traceback."""
-    env = {**os.environ, "COLUMNS": "400", "NO_COLOR": "1", "TERM": "dumb"}
-    proc = subprocess.run(
-        [sys.executable, "-m", "colonlight_cli.main", *args],
-        capture_output=True,
-        text=True,
-        timeout=240,
-        check=False,
-        env=env,
-    )
-    output = proc.stdout + proc.stderr
-    assert "Traceback" not in output, output
-    return proc.returncode, output
 
 
 def clips_of(out: Path) -> dict[str, str]:
