@@ -21,6 +21,8 @@ __version__ = "0.1.0"
 # only for what the clip needs (no torch for ``--method none``; nothing of training or evaluation).
 _EXPORTS: dict[str, str] = {
     "atomic_path": "atomic",
+    "parse_json": "atomic",
+    "read_json": "atomic",
     "write_json_atomic": "atomic",
     "MANIFEST_FILE": "batch",
     "ManifestError": "batch",
@@ -97,7 +99,7 @@ _EXPORTS: dict[str, str] = {
 }
 
 if TYPE_CHECKING:
-    from .atomic import atomic_path, write_json_atomic
+    from .atomic import atomic_path, parse_json, read_json, write_json_atomic
     from .batch import MANIFEST_FILE, ManifestError, default_workers, run_batch, warm_method
     from .checkpoint import DEFAULT_WEIGHTS, LoadedWeights, load_weights, save_weights
     from .cluster import ClusterRunner
@@ -198,10 +200,12 @@ __all__ = [
     "output_lock",
     "parse_content_mode",
     "parse_frame_steps",
+    "parse_json",
     "parse_model_size",
     "prepare_output",
     "probe_video",
     "read_camera",
+    "read_json",
     "resolve_device",
     "reuse_frame_memory",
     "run_batch",

@@ -1,4 +1,5 @@
-"""Atomic file writes: a reader (or a resumed run) never sees a half-written file.
+"""Atomic file writes: a reader (or a resumed run) never sees a half-written file; and the JSON reader that
+pairs with the JSON writer, for files that may be damaged.
 
 Every output is written to a temporary name in the destination folder and renamed into place; a rename within one
 filesystem is atomic, so after a crash or ``kill -9`` a file either exists complete or not at all.
@@ -94,6 +95,25 @@ def json_bytes(obj: Any) -> bytes:
     ``os.fsencode`` gives back the name's original bytes: lossless. Everything else is plain UTF-8.
     """
     return (json.dumps(obj, indent=1, ensure_ascii=False) + "\n").encode("utf-8", "backslashreplace")
+
+
+def parse_json(text: str | bytes) -> Any:
+    """``json.loads``, with JSON nested deeper than the decoder can follow reported as the ``ValueError`` of any
+    other malformed JSON.
+
+    The standard decoder recurses once per ``[`` or ``{`` and raises ``RecursionError`` past Python's limit, which
+    a caller expecting ``ValueError`` for a damaged file would let escape as a traceback. One place converts it.
+    """
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise ValueError("JSON nested too deep to decode") from None
+
+
+def read_json(path: Path) -> Any:
+    """The JSON value in the UTF-8 file at ``path``: ``OSError`` if it cannot be read, ``ValueError`` if it is not
+    JSON (:func:`parse_json`)."""
+    return parse_json(Path(path).read_text(encoding="utf-8"))
 
 
 def write_json_atomic(dest: Path, obj: Any) -> None:

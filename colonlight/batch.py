@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from . import __version__
-from .atomic import remove_stale_temporaries, write_json_atomic
+from .atomic import read_json, remove_stale_temporaries, write_json_atomic
 from .discovery import MANIFEST_FILE as MANIFEST_FILE  # the batch's API; the name discovery keeps clear of
 from .discovery import VIDEO_SUFFIXES, discover_clips  # noqa: F401 - re-exported (the batch's API)
 from .errors import ColonlightError
@@ -78,14 +78,12 @@ class Manifest:
 
     @staticmethod
     def open(out_root: Path, settings: dict[str, Any]) -> Manifest:
-        import json
-
         path = Path(out_root) / MANIFEST_FILE
         clips: dict[str, dict[str, Any]] = {}
         try:
-            for entry in json.loads(path.read_text(encoding="utf-8")).get("clips", []):
+            for entry in read_json(path).get("clips", []):
                 clips[entry["clip"]] = entry
-        except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError):
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
             pass
         return Manifest(path, settings, clips)
 

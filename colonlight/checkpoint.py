@@ -10,7 +10,6 @@
 from __future__ import annotations
 
 import hashlib
-import json
 import pickle
 import warnings
 import zipfile
@@ -22,7 +21,7 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from .atomic import atomic_path, write_json_atomic
+from .atomic import atomic_path, read_json, write_json_atomic
 from .errors import CheckpointError
 from .limits import MAX_MODEL_SIZE, MIN_MODEL_SIZE
 from .model import HEAD_OUTPUTS, INPUT_CHANNELS, GammaNet
@@ -79,8 +78,8 @@ def read_card(path: Path, digest: str) -> dict[str, Any]:
     if not cp.is_file():
         return {}
     try:
-        card: dict[str, Any] = json.loads(cp.read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError) as exc:  # RecursionError: JSON nested too deep to decode
+        card: dict[str, Any] = read_json(cp)
+    except (OSError, ValueError) as exc:
         raise CheckpointError(f"{cp}: unreadable model card ({exc})") from exc
     if not isinstance(card, dict):
         raise CheckpointError(f"{cp}: unreadable model card (a JSON object expected, found {type(card).__name__})")

@@ -466,17 +466,16 @@ def _handshake(address: str, timeout: float) -> None:
 
 def _visible_here(job: ClipJob, frames: int) -> bool:
     """True when this machine sees the clip's complete outputs (gammas.json with ``frames`` frames)."""
-    import json
-
+    from .atomic import read_json
     from .pipeline import GAMMAS_FILE
 
     deadline = time.monotonic() + VISIBLE_TIMEOUT
     while True:
         try:
-            record = json.loads((job.out_dir / GAMMAS_FILE).read_text(encoding="utf-8"))
+            record = read_json(job.out_dir / GAMMAS_FILE)
             if record.get("frame_count") == frames:
                 return True
-        except (OSError, ValueError, RecursionError, AttributeError):
+        except (OSError, ValueError, AttributeError):
             pass
         if time.monotonic() > deadline:
             return False

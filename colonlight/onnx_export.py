@@ -10,7 +10,6 @@ it. Every export is checked against torch with ONNX Runtime before anything is w
 from __future__ import annotations
 
 import hashlib
-import json
 import platform
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +19,7 @@ import numpy as np
 import torch
 
 from . import __version__
-from .atomic import write_bytes_atomic, write_json_atomic
+from .atomic import read_json, write_bytes_atomic, write_json_atomic
 from .checkpoint import LoadedWeights, card_path
 from .correction import CURVE_KNOTS, CURVE_SLOPE_MAX, LOG_GAIN_SPAN, LOG_GAMMA_SPAN, SLOPE_OFFSET
 from .methods.rnn import CURVE_SUMMARY_AT, GAIN_MAX, GAIN_MIN, GAMMA_MAX, GAMMA_MIN, PRESAMPLE, SEED_FRAMES
@@ -265,7 +264,7 @@ def read_sidecar(onnx_path: Path) -> dict[str, Any]:
     """The sidecar of an exported graph (``ExportError`` naming the file if absent or unreadable)."""
     path = onnx_sidecar_path(onnx_path)
     try:
-        record: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError) as exc:
+        record: dict[str, Any] = read_json(path)
+    except (OSError, ValueError) as exc:
         raise ExportError(f"{path}: no readable sidecar ({exc})") from None
     return record

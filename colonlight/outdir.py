@@ -27,6 +27,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from .atomic import parse_json
 from .discovery import OUTPUT_MARKER
 from .errors import ColonlightError
 
@@ -85,8 +86,8 @@ def prepare_output(out_root: Path) -> Path:
 def _holder(fd: int) -> str:
     """Who holds the lock, from what the holder wrote into the lock file."""
     try:
-        info: dict[str, Any] = json.loads(os.pread(fd, 4096, 0).decode("utf-8", "replace") or "{}")
-    except (OSError, ValueError, RecursionError):
+        info: dict[str, Any] = parse_json(os.pread(fd, 4096, 0).decode("utf-8", "replace") or "{}")
+    except (OSError, ValueError):
         info = {}
     if not isinstance(info, dict) or "pid" not in info:
         return "another colonlight process"

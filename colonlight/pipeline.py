@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from . import __version__
-from .atomic import publish, remove_stale_temporaries, write_json_atomic, write_temporary
+from .atomic import publish, read_json, remove_stale_temporaries, write_json_atomic, write_temporary
 from .content import DEFAULT_CONTENT, content_stream, parse_content_mode
 from .errors import InputError, OptionError
 from .frames import encode_image
@@ -164,8 +164,8 @@ def complete_record(out_dir: Path, method: Method, opts: ClipOptions) -> dict[st
     A clip whose record is returned can be skipped; the record says how many frames it has.
     """
     try:
-        record: dict[str, Any] = json.loads((out_dir / GAMMAS_FILE).read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError):  # RecursionError: JSON nested too deep to decode
+        record: dict[str, Any] = read_json(out_dir / GAMMAS_FILE)
+    except (OSError, ValueError):
         return None
     if not isinstance(record, dict):
         return None

@@ -31,7 +31,7 @@ from kornia.metrics import ssim as kornia_ssim
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from .atomic import atomic_path, write_json_atomic
+from .atomic import atomic_path, read_json, write_json_atomic
 from .checkpoint import load_weights, save_weights
 from .correction import apply_gain_gamma, apply_head, correct, gain_gamma_to_curve_map
 from .errors import InputError, OptionError
@@ -547,8 +547,8 @@ _STATE_HINT = "; delete it to resume from the epoch before, or give --no-resume 
 def _read_state_meta(path: Path) -> dict[str, Any]:
     """The JSON half of a saved training state; InputError naming it if it cannot be read."""
     try:
-        meta = json.loads(path.with_suffix(".json").read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError) as exc:  # RecursionError: JSON nested too deep to decode
+        meta = read_json(path.with_suffix(".json"))
+    except (OSError, ValueError) as exc:
         raise InputError(f"{path.with_suffix('.json')}: unreadable training state ({exc}){_STATE_HINT}") from None
     if not isinstance(meta, dict):
         raise InputError(f"{path.with_suffix('.json')}: unreadable training state (not a JSON object){_STATE_HINT}")
@@ -852,9 +852,9 @@ def export_epoch(run_dir: Path, epoch: int, out: Path | None = None) -> TrainRes
         have = f"epochs saved: {', '.join(map(str, saved))}" if saved else "no epoch saved yet"
         raise InputError(f"{run_dir}: no saved state for epoch {epoch} ({have})")
     try:
-        meta = json.loads(state.with_suffix(".json").read_text(encoding="utf-8"))
+        meta = read_json(state.with_suffix(".json"))
         tensors = load_file(str(state.with_suffix(".safetensors")))
-    except (OSError, ValueError, RecursionError, SafetensorError) as exc:
+    except (OSError, ValueError, SafetensorError) as exc:
         raise InputError(f"{state}: unreadable training state ({exc})") from exc
     if not isinstance(meta, dict) or not isinstance(meta.get("card"), dict):
         raise InputError(f"{state}.json: saved by an older colonlight, it has no model card to export")

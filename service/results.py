@@ -3,12 +3,11 @@ labelled with the upload's name instead of the server's path."""
 
 from __future__ import annotations
 
-import json
 import threading
 import zipfile
 from pathlib import Path
 
-from colonlight import GAMMAS_FILE, VIDEO_FILE, ClipJob, ClipOutcome, atomic_path, write_json_atomic
+from colonlight import GAMMAS_FILE, VIDEO_FILE, ClipJob, ClipOutcome, atomic_path, read_json, write_json_atomic
 
 from .errors import is_disk_full
 from .runners import DISK_FULL, NO_SPACE
@@ -44,7 +43,7 @@ def label_source(outcome: ClipOutcome, job: ClipJob, label: str) -> ClipOutcome:
     """The finished clip's gammas.json with ``source`` naming the upload's label, not its server path."""
     gammas = job.out_dir / GAMMAS_FILE
     try:
-        record = json.loads(gammas.read_text(encoding="utf-8"))
+        record = read_json(gammas)
         record["source"] = label
         write_json_atomic(gammas, record)
     except (OSError, ValueError) as exc:

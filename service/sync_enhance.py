@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import base64
-import json
 import math
 import os
 import secrets
@@ -13,7 +12,7 @@ from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
-from colonlight import GAMMAS_FILE, VIDEO_FILE, ClipJob, ClipOptions, ClipOutcome, MethodSpec, VideoInfo
+from colonlight import GAMMAS_FILE, VIDEO_FILE, ClipJob, ClipOptions, ClipOutcome, MethodSpec, VideoInfo, read_json
 from colonlight.limits import MAX_FPS
 
 from .admission import Admission, JobBoard
@@ -128,7 +127,7 @@ class SyncEnhancer:
             self.metrics.observe_job("succeeded", outcome.seconds)
 
             def read() -> dict[str, Any]:
-                gammas = json.loads((job.out_dir / GAMMAS_FILE).read_text(encoding="utf-8"))
+                gammas = read_json(job.out_dir / GAMMAS_FILE)
                 gammas["source"] = upload.filename  # the upload's label, not the server's path
                 video = (job.out_dir / VIDEO_FILE).read_bytes()
                 return {

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ..atomic import write_json_atomic
+from ..atomic import read_json, write_json_atomic
 
 
 def content_key(kind: str, arrays: Iterable[np.ndarray | None], params: dict[str, Any]) -> str:
@@ -53,8 +53,8 @@ class ResultCache:
         """The cached result for this content, else ``compute()`` (stored before it is returned)."""
         path = self.folder / kind / f"{content_key(kind, arrays, params)}.json"
         try:
-            value: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError, RecursionError):
+            value: dict[str, Any] = read_json(path)
+        except (OSError, ValueError):
             pass
         else:
             self.hits += 1

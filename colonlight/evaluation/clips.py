@@ -24,6 +24,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ..atomic import read_json
 from ..discovery import (
     SYNTH_FRAMES,
     SYNTH_MARKER,
@@ -177,11 +178,11 @@ def load_synthetic_clip(
     """A ``colonlight synth`` clip folder with its ground truth, at working size."""
     folder = Path(folder)
     try:
-        meta = json.loads((folder / SYNTH_MARKER).read_text(encoding="utf-8"))
-        intr = json.loads((folder / "intrinsics.json").read_text(encoding="utf-8"))
+        meta = read_json(folder / SYNTH_MARKER)
+        intr = read_json(folder / "intrinsics.json")
         cfg = meta["config"]
         fps = float(cfg.get("fps", DEFAULT_FPS))
-    except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
         raise InputError(f"{folder}: incomplete synthetic clip ({exc})") from exc
     if (folder / SYNTH_FRAMES).is_dir():
         images = [read_image(p) for p in list_image_frames(folder / SYNTH_FRAMES)[:max_frames]]
@@ -208,11 +209,11 @@ def load_synthetic_clip(
     per_frame: list[dict[str, Any]] | None = None
     camera_gamma = None
     try:
-        lighting = json.loads((folder / "lighting.json").read_text(encoding="utf-8"))
+        lighting = read_json(folder / "lighting.json")
         per_frame = [dict(f) for f in lighting["frames"]][: len(frames)]
         occluder = [bool(f.get("close_occluder")) for f in per_frame]
         camera_gamma = lighting.get("camera_gamma")
-    except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError):
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         per_frame = None
     return EvalClip(
         name=name or folder.name,
@@ -352,8 +353,8 @@ def benchmark_config(
 
 def _is_complete(folder: Path, cfg: SynthConfig, seed: int) -> bool:
     try:
-        meta = json.loads((folder / SYNTH_MARKER).read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError):
+        meta = read_json(folder / SYNTH_MARKER)
+    except (OSError, ValueError):
         return False
     return isinstance(meta, dict) and bool(
         meta.get("seed") == seed and meta.get("config") == json.loads(json.dumps(cfg.to_dict()))

@@ -28,7 +28,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..atomic import atomic_path, write_bytes_atomic, write_json_atomic
+from ..atomic import atomic_path, read_json, write_bytes_atomic, write_json_atomic
 from ..discovery import SYNTH_FRAMES, SYNTH_MARKER, SYNTH_VIDEO
 from ..errors import InputError
 from ..limits import DEFAULT_FPS
@@ -264,8 +264,8 @@ def clip_complete(
     """True if ``out_dir`` holds a finished clip of exactly this config, seed and overlay (resume support) with
     every output of ``wanted`` that is True (``video=True``: its ``clip.mp4``; one rendered without is not)."""
     try:
-        meta = json.loads((out_dir / SYNTH_MARKER).read_text())
-    except (OSError, ValueError, RecursionError):
+        meta = read_json(out_dir / SYNTH_MARKER)
+    except (OSError, ValueError):
         return False
     if not isinstance(meta, dict):
         return False

@@ -51,7 +51,15 @@ from fastapi import APIRouter, WebSocket
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
 from starlette.websockets import WebSocketDisconnect
 
-from colonlight import DEFAULT_CONTENT, ColonlightError, ContentMode, FrameResult, MethodStream, live_content_stream
+from colonlight import (
+    DEFAULT_CONTENT,
+    ColonlightError,
+    ContentMode,
+    FrameResult,
+    MethodStream,
+    live_content_stream,
+    parse_json,
+)
 from colonlight.limits import MAX_JPEG_QUALITY, MIN_JPEG_QUALITY
 
 from ..deps import key_is_valid
@@ -209,8 +217,8 @@ class StreamSession:
     @staticmethod
     def parse_text(text: str) -> dict[str, Any]:
         try:
-            value = json.loads(text)
-        except (ValueError, RecursionError):  # RecursionError: nested too deep to decode
+            value = parse_json(text)
+        except ValueError:
             raise FrameError(f"a text message must be a JSON object, got {text[:60]!r}") from None
         if not isinstance(value, dict) or not isinstance(value.get("type"), str):
             raise FrameError('a text message must be a JSON object with a "type" ("start", "frame" or "end")')
@@ -356,8 +364,8 @@ def header_key_ok(ws: WebSocket, settings: Settings) -> bool:
 def start_key(message: dict[str, Any]) -> str | None:
     """The ``api_key`` of a first message that is a JSON start message, else None."""
     try:
-        value = json.loads(message.get("text") or "null")
-    except (ValueError, RecursionError):
+        value = parse_json(message.get("text") or "null")
+    except ValueError:
         return None
     key = value.get("api_key") if isinstance(value, dict) and value.get("type") == "start" else None
     return key if isinstance(key, str) else None

@@ -96,7 +96,7 @@ def test_a_resume_with_other_settings_or_fewer_epochs_is_refused_and_changes_not
     [
         ("truncate", "epoch_002.safetensors", "unreadable training state (Error while deserializing header"),
         ("list", "epoch_002.json", "unreadable training state (not a JSON object)"),
-        ("deep", "epoch_002.json", "unreadable training state (maximum recursion depth"),
+        ("deep", "epoch_002.json", "unreadable training state (JSON nested too deep to decode)"),
     ],
 )
 def test_a_damaged_training_state_is_one_line(run: Path, clips: Path, tmp_path: Path, damage: str, names: str,
