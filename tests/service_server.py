@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -17,20 +16,7 @@ from pathlib import Path
 
 import httpx
 
-
-def free_port() -> int:
-    """A free loopback port; from the range ``COLONLIGHT_TEST_PORTS`` (e.g. ``18300-18399``) when that is set, so
-    that test runs sharing a machine keep to their own ports."""
-    low, _, high = os.environ.get("COLONLIGHT_TEST_PORTS", "").partition("-")
-    candidates = range(int(low), int(high or low) + 1) if low.isdigit() else [0]
-    for port in candidates:
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            try:
-                s.bind(("127.0.0.1", port))
-            except OSError:
-                continue
-            return int(s.getsockname()[1])
-    raise RuntimeError(f"no free port in COLONLIGHT_TEST_PORTS={low}-{high}")
+from .ports import free_port
 
 
 class ServiceServer:

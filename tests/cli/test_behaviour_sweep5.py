@@ -17,25 +17,15 @@ import time
 from pathlib import Path
 
 from ..media import ffmpeg_exe, needs_ffmpeg
+from ..ports import free_port
 
 pytestmark = needs_ffmpeg
 
 PORTS = range(18600, 18700)  # this file's loopback ports
 
 
-def _udp_port() -> int:
-    for port in PORTS:
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-            try:
-                s.bind(("127.0.0.1", port))
-            except OSError:
-                continue
-            return port
-    raise RuntimeError("no free port in 18600-18699")
-
-
 def test_udp_stream_that_ends_is_not_reported_as_falling_behind(tmp_path: Path) -> None:
-    port = _udp_port()
+    port = free_port(socket.SOCK_DGRAM, PORTS)
     out = tmp_path / "live"
     env = {k: v for k, v in os.environ.items() if not k.startswith("COLONLIGHT_")}
     env.update({"COLONLIGHT_DEVICE": "cpu", "PYTHONUNBUFFERED": "1"})

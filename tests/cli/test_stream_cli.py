@@ -21,22 +21,12 @@ import numpy as np
 import pytest
 
 from ..media import X264, ffmpeg_exe, ffmpeg_fps_indices, index_frame, make_clip, needs_ffmpeg, read_index
+from ..ports import free_port
 
 pytestmark = needs_ffmpeg
 
 PORTS = range(18400, 18500)  # this suite's loopback ports
 SRC_FPS = 30
-
-
-def _port(kind: int = socket.SOCK_STREAM) -> int:
-    for port in PORTS:
-        with socket.socket(socket.AF_INET, kind) as s:
-            try:
-                s.bind(("127.0.0.1", port))
-            except OSError:
-                continue
-            return port
-    raise RuntimeError("no free port in 18400-18499")
 
 
 def _colonlight(*args: str) -> list[str]:
@@ -136,7 +126,7 @@ def _check_log(records: list[dict], fps_choice: list[int] | None = None) -> None
 
 def test_udp_mpegts_stream(tmp_path: Path, live_clip: Path, random_weights: Path) -> None:
     # weights with the paper's head (two seed frames), so that the seed count shows one state for the stream
-    port = _port(socket.SOCK_DGRAM)
+    port = free_port(socket.SOCK_DGRAM, PORTS)
     out = tmp_path / "out"
     proc = subprocess.Popen(
         _colonlight(f"udp://127.0.0.1:{port}", "-o", str(out), "--timeout", "1.5", "--weights", str(random_weights)),
@@ -182,7 +172,7 @@ def test_http_source_that_stops_and_comes_back_reconnects_with_state_kept(
     tmp_path: Path, live_clip: Path, random_weights: Path
 ) -> None:
     # weights with the paper's head (two seed frames): two seeds in all prove the state survived the reconnect
-    port = _port()
+    port = free_port(ports=PORTS)
     out = tmp_path / "out"
     server = _http_server(live_clip, port)
     proc = subprocess.Popen(
@@ -264,7 +254,7 @@ def test_rtsp_stream_published_by_ffmpeg(
     frames arrive at 18 fps and the summary is printed. (FFmpeg has no RTSP server for readers, so the ffmpeg
     binary cannot serve a stream for `colonlight stream rtsp://camera/...` to pull; that path uses the same
     demuxer and decoder, with the roles of the two ends exchanged.)"""
-    port = _port()
+    port = free_port(ports=PORTS)
     out, url = tmp_path / "out", f"rtsp://127.0.0.1:{port}/live"
     proc, err = _rtsp_listener(url, out, random_weights, "--timeout", "60", "--drop", "never")
     try:
@@ -292,7 +282,7 @@ def test_rtsp_stream_published_by_ffmpeg(
 def test_rtsp_source_that_stops_and_comes_back_reconnects_with_state_kept(
     tmp_path: Path, live_clip: Path, random_weights: Path
 ) -> None:
-    port = _port()
+    port = free_port(ports=PORTS)
     out, url = tmp_path / "out", f"rtsp://127.0.0.1:{port}/live"
     proc, err = _rtsp_listener(url, out, random_weights, "--reconnect", "--timeout", "90", "--drop", "never")
     try:
@@ -531,7 +521,7 @@ def test_absent_device_and_refused_connection_are_one_line_errors(tmp_path: Path
     out = tmp_path / "out"
     for src, cause in (
         ("/dev/video97", "/dev/video97: no such capture device ("),
-        (f"tcp://127.0.0.1:{_port()}", "cannot open (Connection refused)"),
+        (f"tcp://127.0.0.1:{free_port(ports=PORTS)}", "cannot open (Connection refused)"),
     ):
         proc = subprocess.run(
             _colonlight(src, "-o", str(out), "-m", "none"), env=_env(), capture_output=True, timeout=60

@@ -15,7 +15,6 @@ import re
 import shlex
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -25,6 +24,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
+
+from ..ports import free_port
 
 REPO = Path(__file__).resolve().parents[2]
 DOCKERFILE = REPO / "Dockerfile"
@@ -240,12 +241,6 @@ def test_dockerignore_sends_what_the_dockerfile_copies_and_nothing_heavy(dockerf
 # ------------------------------------------------------------------------------------------ the steps, in CI
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def _get(url: str, timeout: float = 5) -> tuple[int, bytes]:
     try:
         with urllib.request.urlopen(url, timeout=timeout) as resp:
@@ -351,7 +346,7 @@ def test_image_steps_in_a_fresh_venv_then_its_default_command(dockerfile: Docker
     ).stdout
     if not re.search(rf"\b{cmd[0]}\b", commands):
         pytest.skip(f"`colonlight {cmd[0]}` (the image's CMD) does not exist yet in this checkout")
-    port = _free_port()
+    port = free_port()
     image_port = cmd[cmd.index("--port") + 1]
     argv = [
         str(bin_dir / entrypoint[0]),
