@@ -66,6 +66,17 @@ def test_non_finite_outputs_leave_the_frame_alone_flagged() -> None:
     assert lut is None and values == [] and gamma == 1.0 and clamped
 
 
+def test_a_summary_gamma_at_its_bound_is_not_a_clamped_correction() -> None:
+    """What the README says of very dark clips: the summary gamma is reported within [0.125, 4] without a flag,
+    because the curve, not the summary, is applied; ``clamped`` is for a slope at its cap."""
+    z = [3.0] * 4 + [-6.0] * (CURVE_SEGMENTS - 4)  # steep in the darks (slopes near 3.6, far below the cap)
+    lut, values, gamma, clamped = curve_correction(z)
+    at_middle = float(np.interp(CURVE_SUMMARY_AT, CURVE_KNOTS, values))
+    assert math.log(at_middle) / math.log(CURVE_SUMMARY_AT) < 0.125  # the power law through it is below the range
+    assert gamma == 0.125 and not clamped and lut is not None
+    assert lut[int(CURVE_SUMMARY_AT * 255)] > 255 * CURVE_SUMMARY_AT**0.125 - 2  # and the curve is applied as it is
+
+
 def test_curve_lut_refuses_a_curve_that_is_not_one() -> None:
     with pytest.raises(OptionError):
         curve_lut([0.0, 0.5, 1.0], [0.0, 0.6, 0.5])  # decreasing
