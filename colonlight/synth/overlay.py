@@ -75,6 +75,12 @@ class OverlaySpec:
         return out
 
 
+def drawn_overlay(overlay: OverlaySpec | None) -> OverlaySpec | None:
+    """``overlay`` if it draws anything, else None: the one test of whether a clip has an overlay (its frames,
+    its ``content.png`` and its manifest all follow it)."""
+    return overlay if overlay is not None and overlay.active else None
+
+
 def fov_mask(height: int, width: int, border: str, fov: float = 0.96) -> np.ndarray:
     """``(H, W)`` bool, True inside the field of view (all True for ``border="none"``)."""
     if border == "none":

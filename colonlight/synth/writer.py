@@ -36,7 +36,7 @@ from ..video import VideoWriter
 from ..worker_process import die_with_parent
 from .clip import SynthFrame, build_scene, render_frame
 from .config import Split, SynthConfig
-from .overlay import OverlaySpec
+from .overlay import OverlaySpec, drawn_overlay
 
 GENERATOR_VERSION = "1.0"
 DEPTH_UNIT_M = 1e-4
@@ -165,6 +165,7 @@ def write_clip(
     """Render clip ``(cfg, seed)`` into ``out_dir`` (see the module docstring for the layout); returns
     ``out_dir``. ``overlay`` draws a scope's border and on-screen text onto the frames and clean frames."""
     out_dir = Path(out_dir)
+    overlay = drawn_overlay(overlay)
     out_dir.mkdir(parents=True, exist_ok=True)
     # a clip rendered here before (another config) stops being one now: interrupted, no marker says "complete"
     (out_dir / SYNTH_MARKER).unlink(missing_ok=True)
@@ -175,7 +176,7 @@ def write_clip(
     try:
         for i in range(cfg.n_frames):
             f: SynthFrame = render_frame(scene, i)
-            if overlay is not None and overlay.active:
+            if overlay is not None:
                 f = dataclasses.replace(f, image=overlay.apply(f.image), clean=overlay.apply(f.clean))
             if writer is not None:
                 writer.write(f.image)
@@ -209,12 +210,13 @@ def write_clip(
         },
     )
     manifest = _manifest(cfg, seed, video=video, frames=frames, clean=clean, depth=depth)
-    drawn = overlay is not None and overlay.active
-    if overlay is not None and overlay.active:
+    if overlay is not None:
         fov, text = overlay.masks(cfg.height, cfg.width)
         _write_png(out_dir / "content.png", np.where(fov & ~text, 255, 0).astype(np.uint8))
         manifest["overlay"] = overlay.to_dict()
-    _remove_stale(out_dir, cfg.n_frames, video=video, frames=frames, clean=clean, depth=depth, content=drawn)
+    _remove_stale(
+        out_dir, cfg.n_frames, video=video, frames=frames, clean=clean, depth=depth, content=overlay is not None
+    )
     write_json_atomic(out_dir / SYNTH_MARKER, manifest)
     return out_dir
 
@@ -269,7 +271,8 @@ def clip_complete(
         return False
     if not isinstance(meta, dict):
         return False
-    drawn = overlay.to_dict() if overlay is not None and overlay.active else None
+    overlay = drawn_overlay(overlay)
+    drawn = overlay.to_dict() if overlay is not None else None
     written = meta.get("written")
     if not isinstance(written, dict):
         written = {}
@@ -342,7 +345,7 @@ def make_dataset(
             over.setdefault("undisturbed_seeds", True)
         cfg = SynthConfig.sample(rng, split=split, width=width, height=height, n_frames=n_frames, fps=fps, **over)
         flags: dict[str, Any] = {"video": video}
-        if overlay is not None and overlay.active:
+        if drawn_overlay(overlay) is not None:
             flags["overlay"] = overlay
         jobs.append((out_dir / f"clip_{i:05d}", cfg.to_dict(), s, flags))
     if workers <= 1 or len(jobs) <= 1:
