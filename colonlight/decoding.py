@@ -137,6 +137,10 @@ def _error(path: Path, cause: str) -> InputError:
     return InputError(" ".join(f"{path}: {cause}".split()))
 
 
+#: errno codes FFmpeg's demuxers return for a header they refuse (not the OS's, for a file already stat()ed)
+_HEADER_ERRNOS = frozenset({errno.EBUSY, errno.EINVAL, errno.ERANGE, errno.EDOM, errno.ENOSYS, errno.EOVERFLOW})
+
+
 def _cause(exc: BaseException, opening: bool = False) -> str:
     """A short cause for an OS or FFmpeg error (without the path PyAV appends to its messages)."""
     if isinstance(exc, FileNotFoundError):
@@ -151,6 +155,10 @@ def _cause(exc: BaseException, opening: bool = False) -> str:
         return "no video frames: the file ends before its first frame (an empty or unfinished recording?)"
     if opening and isinstance(exc, av.error.FFmpegError) and exc.errno == errno.EIO:  # FFmpeg's word for a cut
         return "its container cannot be read (Input/output error): truncated or corrupt?"
+    if opening and isinstance(exc, av.error.FFmpegError) and exc.errno in _HEADER_ERRNOS:
+        # a demuxer's refusal of the header it read, in errno's words: said bare ("Device or resource busy" for a
+        # .y4m of size 0x0 or past FFmpeg's limit), it read as trouble with the disk rather than with the file
+        return f"not a video FFmpeg can open: it refuses the file's header ({exc.strerror or exc})"
     return str(getattr(exc, "strerror", None) or exc or type(exc).__name__)
 
 

@@ -11,8 +11,10 @@ allowed as long as they are not videos. Frames are taken in natural order (``fra
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
+import threading
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
@@ -103,6 +105,37 @@ def check_image_size(path: Path, max_pixels: int | None = None) -> tuple[int, in
     return width, height
 
 
+_OPENCV_LOG_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def _opencv_quiet() -> Iterator[None]:
+    """OpenCV's own logging off while an image decodes: a decoder that fails logs "[ERROR:...] imdecode_ ..." to
+    stderr, beside the one line that names the file; the failure is reported by the caller. The log level is
+    process-wide, hence the lock (decodes in other threads wait rather than restore the wrong level)."""
+    log = cv2.utils.logging
+    with _OPENCV_LOG_LOCK:
+        level = log.getLogLevel()
+        log.setLogLevel(log.LOG_LEVEL_SILENT)
+        try:
+            yield
+        finally:
+            log.setLogLevel(level)
+
+
+def _as_bgr(img: np.ndarray | None) -> np.ndarray | None:
+    """An image decoded as it is (1 to 4 channels) as 3 channels: grey repeated, alpha dropped."""
+    if img is None:
+        return None
+    if img.ndim == 2:
+        img = img[..., None]
+    if img.ndim != 3 or img.shape[2] not in (1, 2, 3, 4):
+        return None
+    if img.shape[2] <= 2:  # grey, grey + alpha
+        return np.ascontiguousarray(np.repeat(img[..., :1], 3, axis=2))
+    return np.ascontiguousarray(img[..., :3])
+
+
 def read_image(path: Path) -> np.ndarray:
     """Read an image as ``(H, W, 3)`` uint8 RGB: grey becomes 3 channels, alpha is dropped, 16-bit is scaled
     to 8-bit, and JPEG EXIF orientation is applied. InputError (naming the file) if it cannot be read."""
@@ -119,12 +152,20 @@ def read_image(path: Path) -> np.ndarray:
         raise InputError(f"{path}: empty file (0 bytes)")
     # IMREAD_COLOR: always 3 channels (grey expanded, alpha dropped), EXIF orientation applied;
     # IMREAD_ANYDEPTH: keep 16-bit samples so that we scale them ourselves rather than OpenCV truncating them.
-    img = cv2.imdecode(data, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+    with _opencv_quiet():
+        img = cv2.imdecode(data, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+        if img is None:
+            # OpenCV's colour read refuses a one-channel float TIFF (ImageJ's "32-bit", Pillow's mode F: a channel
+            # check fails inside its decoder) that it reads as it is; take it so and make the 3 channels here.
+            img = _as_bgr(cv2.imdecode(data, cv2.IMREAD_ANYCOLOR | cv2.IMREAD_ANYDEPTH))
     if img is None or img.ndim != 3 or img.shape[2] != 3:
         raise InputError(f"{path}: not a readable image (corrupt or unsupported format)")
     if img.dtype == np.uint16:
         img = ((img.astype(np.uint32) * 255 + 32767) // 65535).astype(np.uint8)
     elif img.dtype in (np.float32, np.float64):
+        # NaN and infinities (a float TIFF's "no data") are defined here: cast as they are, NaN gave whatever the
+        # platform's float-to-int conversion gives, and numpy warned on stderr once per frame.
+        img = np.nan_to_num(img, nan=0.0, posinf=1.0, neginf=0.0)
         img = (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
     elif img.dtype != np.uint8:
         raise InputError(f"{path}: unsupported image sample type {img.dtype}")

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -79,11 +80,17 @@ class CameraFile:
         return hashlib.sha256(self.text.encode("utf-8")).hexdigest()
 
 
+#: A number as DSO and COLMAP read one (C's strtod, std::stoi): ASCII only. Python's float() and int() also take
+#: other scripts' digits ('١٢٨'), '1_000' and superscripts pass str.isdigit(): a file with them passed the check and
+#: was copied beside every clip, where the SLAM tool then failed on it.
+_NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+_INTEGER = re.compile(r"[0-9]+")
+
+
 def _numbers(tokens: Sequence[str], what: str) -> list[float]:
-    try:
-        values = [float(t) for t in tokens]
-    except ValueError:
-        raise ValueError(f"{what}: expected numbers, got {' '.join(tokens)!r}") from None
+    if not all(_NUMBER.fullmatch(t) for t in tokens):
+        raise ValueError(f"{what}: expected numbers, got {' '.join(tokens)!r}")
+    values = [float(t) for t in tokens]
     if not all(math.isfinite(v) for v in values):
         raise ValueError(f"{what}: numbers must be finite")
     return values
@@ -91,7 +98,7 @@ def _numbers(tokens: Sequence[str], what: str) -> list[float]:
 
 def _size(line: str, what: str) -> Size:
     tokens = line.split()
-    if len(tokens) != 2 or not all(t.isdigit() for t in tokens) or min(int(t) for t in tokens) < 1:
+    if len(tokens) != 2 or not all(_INTEGER.fullmatch(t) for t in tokens) or min(int(t) for t in tokens) < 1:
         raise ValueError(f"{what}: expected 'width height', got {line.strip()!r}")
     return int(tokens[0]), int(tokens[1])
 
@@ -141,7 +148,7 @@ def _parse_colmap(lines: list[str]) -> tuple[Size, ...]:
         raise ValueError("no camera line (CAMERA_ID MODEL WIDTH HEIGHT PARAMS...)")
     for i, tokens in cameras:
         where = f"line {i + 1}"
-        if len(tokens) < 5 or not tokens[0].isdigit():
+        if len(tokens) < 5 or not _INTEGER.fullmatch(tokens[0]):
             raise ValueError(f"{where}: expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS...")
         model = tokens[1]
         size = _size(" ".join(tokens[2:4]), f"{where} (WIDTH HEIGHT)")
@@ -154,7 +161,8 @@ def _parse_colmap(lines: list[str]) -> tuple[Size, ...]:
 
 def _looks_like_colmap(lines: list[str]) -> bool:
     cameras = _colmap_lines(lines)
-    return bool(cameras) and len(cameras[0][1]) >= 2 and cameras[0][1][0].isdigit() and cameras[0][1][1].isupper()
+    first = cameras[0][1] if cameras else []
+    return len(first) >= 2 and _INTEGER.fullmatch(first[0]) is not None and first[1].isupper()
 
 
 def parse_camera(text: str, name: str) -> CameraFile:

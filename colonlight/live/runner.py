@@ -37,6 +37,9 @@ from .stats import LatencyStats, StreamSummary
 DEFAULT_BUFFER = 2
 #: Seconds without data after which a network source or device counts as lost.
 DEFAULT_TIMEOUT_S = 5.0
+#: The longest --timeout: the run waits for its reader thread for ``timeout + 1`` s at the end, and Python's
+#: thread waits refuse more than ``threading.TIMEOUT_MAX`` (~292 years on Linux) with an OverflowError.
+MAX_TIMEOUT_S = 1e9
 _POLL_S = 0.1  # how often the processing loop looks at the stop flag while waiting for a frame
 
 
@@ -63,8 +66,12 @@ class StreamOptions:
             raise OptionError(f"drop must be auto or one of {', '.join(DROP_POLICIES)}, got {self.drop!r}")
         if self.buffer < 1:
             raise OptionError(f"buffer must be >= 1, got {self.buffer}")
-        if self.timeout_s <= 0:
-            raise OptionError(f"timeout must be > 0, got {self.timeout_s}")
+        # not `<= 0` alone: NaN passes it, and infinity (or 1e308) then crashed the end of the run (OverflowError
+        # from the reader thread's join) after the frames were out, with a traceback and no stream.json
+        if not 0 < self.timeout_s <= MAX_TIMEOUT_S:
+            raise OptionError(
+                f"timeout must be a number of seconds above 0 and at most {MAX_TIMEOUT_S:.0f}, got {self.timeout_s}"
+            )
         parse_content_mode(self.content)
 
 
