@@ -1,5 +1,5 @@
 """Run the benchmarks (default: all): `python -m benchmarks [input_size] [enhance] [service] [stream] [ws_stream]
-[quality_gate] [objective_landscape] [onnx_step] [model_validation] [model_cost]`.
+[quality_gate] [objective_landscape] [onnx_step] [model_validation] [model_cost] [video_encoding]`.
 
 Options after a name go to that benchmark: `python -m benchmarks quality_gate --json gate.json`.
 """
@@ -21,6 +21,7 @@ BENCHMARKS = {
     "onnx_step": "benchmarks.onnx_step",
     "model_validation": "benchmarks.model_validation",
     "model_cost": "benchmarks.model_cost",
+    "video_encoding": "benchmarks.video_encoding",
 }
 
 

@@ -20,6 +20,11 @@ from .fps import as_fraction
 #: x264 threads (and so slices per frame) of :class:`VideoWriter`: fixed, so that ``enhanced.mp4`` is byte-identical
 #: on any machine; 4 keeps a 1080p encode ahead of the enhancement on small machines.
 ENCODER_THREADS = 4
+#: x264 options of :class:`VideoWriter` beyond CRF and preset. mbtree=0: x264's macroblock-tree pass gives
+#: different bytes from run to run in one process (even on one thread: 7 different videos of the same 26 frames in
+#: 40 encodes at 96x80, 2 in 40 at 320x240); without it the bytes are the same every time. Its cost in bytes is
+#: measured by ``python -m benchmarks video_encoding`` (README, reproducible videos).
+X264_PARAMS = "mbtree=0"
 
 
 class VideoWriter:
@@ -28,7 +33,8 @@ class VideoWriter:
     The file appears at ``path`` only when :meth:`close` succeeds (atomic rename); on error nothing is left.
     Odd widths/heights are padded by one pixel (yuv420p needs even sizes). Colours are converted as BT.601
     limited range and tagged so, so that players do not shift them. A writer that got no frame writes nothing.
-    The same frames give the same bytes on any machine (fixed encoder threads, no muxer version or time).
+    The same frames give the same bytes on any machine (fixed encoder threads, no muxer version or time, no
+    macroblock-tree pass: ``X264_PARAMS``); ``x264_params`` overrides that for measurements of what it costs.
 
     Example::
 
@@ -37,12 +43,15 @@ class VideoWriter:
                 w.write(frame)
     """
 
-    def __init__(self, path: Path, fps: float, crf: int = 18, preset: str = "medium") -> None:
+    def __init__(
+        self, path: Path, fps: float, crf: int = 18, preset: str = "medium", x264_params: str = X264_PARAMS
+    ) -> None:
         self.path = Path(path)
         self.fps = fps
         self.rate = as_fraction(fps)
         self.crf = crf
         self.preset = preset
+        self.x264_params = x264_params
         self._ctx: Any = None
         self._tmp: Path | None = None
         self._container: Any = None
@@ -64,10 +73,10 @@ class VideoWriter:
             cc = self._stream.codec_context
             cc.colorspace = cc.color_primaries = cc.color_trc = 6  # smpte170m: BT.601, as swscale converts
             cc.color_range = 1  # limited ("tv")
-            # mbtree=0: x264's macroblock-tree pass gives different bytes from run to run in one process (even on
-            # one thread: 7 different videos of the same 26 frames in 40 encodes at 96x80, 2 in 40 at 320x240);
-            # without it the bytes are the same every time.
-            self._stream.options = {"crf": str(self.crf), "preset": self.preset, "x264-params": "mbtree=0"}
+            options = {"crf": str(self.crf), "preset": self.preset}
+            if self.x264_params:
+                options["x264-params"] = self.x264_params
+            self._stream.options = options
             # x264 cuts each frame into one slice per thread, and by default takes as many threads as the
             # process may use cores (sched_getaffinity): the bytes then depend on the machine and its load
             # limits. A fixed count makes them the same everywhere.
