@@ -300,6 +300,22 @@ def test_worker_killed_mid_clip_is_retried_elsewhere(
     assert not list(out.rglob("*.colonlight-tmp*")) and not list(out.rglob(f"{MARKER_NAME}*"))
 
 
+def test_shipped_default_with_video_on_cluster_is_byte_identical_to_local(
+    cluster: LoopbackCluster, videos: Path, tmp_path: Path
+) -> None:
+    """What users run: the shipped default (curve head, delta input, tone matching, scene cuts) and enhanced.mp4,
+    whose encoder settings keep its bytes the same in any process (x264 threads, no macroblock tree)."""
+    cluster.ensure_workers(2)
+    local, remote = tmp_path / "local", tmp_path / "cluster"
+    proc = enhance(videos / "site0", "-o", local, "--video")
+    assert proc.returncode == 0, proc.stderr
+    proc = enhance(videos / "site0", "-o", remote, "--video", "--cluster", cluster.address)
+    assert proc.returncode == 0, proc.stderr
+    expected = output_bytes(local)
+    assert sum(name.endswith("enhanced.mp4") for name in expected) == 2, sorted(expected)
+    assert output_bytes(remote) == expected
+
+
 def test_missing_and_broken_clips_fail_as_in_a_local_run(
     cluster: LoopbackCluster, weights: Path, tmp_path: Path
 ) -> None:
