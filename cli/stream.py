@@ -215,13 +215,19 @@ def stream(
         engine = load_method_or_exit(spec, debug)  # a bad checkpoint or absent device: a usage error, as in `enhance`
         try:
             src = parse_source(source, input_format, _input_options(input_option))
-            if output is not None:
-                prepare_output_dir(output, overwrite)
         except ColonlightError as exc:
             if debug:
                 raise
             error_line(str(exc))
             raise typer.Exit(1) from None
+        try:
+            if output is not None:
+                prepare_output_dir(output, overwrite)
+        except ColonlightError as exc:  # an --output that cannot be used: a usage error, as in `enhance`
+            if debug:
+                raise
+            error_line(str(exc))
+            raise typer.Exit(2) from None
     if "torch" in sys.modules:  # the method uses torch: its threads as `enhance` sets them (one for the small net)
         sys.modules["torch"].set_num_threads(network_threads(spec, 1))
     reuse_frame_memory()

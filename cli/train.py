@@ -177,7 +177,7 @@ def train_cmd(
         "--size",
         min=16,
         max=MAX_MODEL_SIZE,
-        help=f"Training input size (match the inference default, {DEFAULT_MODEL_SIZE}).",
+        help="Training input size; the card records it, and the model runs at it unless --model-size is given.",
     ),
     epochs: int = typer.Option(10, "--epochs", min=1),
     batch: int = typer.Option(4, "--batch", min=1),

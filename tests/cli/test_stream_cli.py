@@ -542,10 +542,15 @@ def test_outputs_of_an_earlier_stream_are_not_mixed(tmp_path: Path, live_clip: P
     args = (str(live_clip), "-o", str(out), "-m", "none", "-q")
     assert subprocess.run(_colonlight(*args), env=_env(), capture_output=True, timeout=60).returncode == 0
     again = subprocess.run(_colonlight(*args), env=_env(), capture_output=True, timeout=60)
-    assert again.returncode == 1 and b"already holds a stream's outputs" in again.stderr
+    assert again.returncode == 2 and b"already holds a stream's outputs" in again.stderr  # a usage error
     assert (
         subprocess.run(_colonlight(*args, "--overwrite"), env=_env(), capture_output=True, timeout=60).returncode == 0
     )
+    afile = tmp_path / "afile"
+    afile.write_text("mine")
+    proc = subprocess.run(_colonlight(str(live_clip), "-o", str(afile), "-m", "none"), env=_env(), capture_output=True)
+    assert proc.returncode == 2 and b"is a file, not a folder" in proc.stderr, proc.stderr  # a usage error
+    assert afile.read_text() == "mine" and b"Traceback" not in proc.stderr
 
 
 def test_stream_benchmark_short_version(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
