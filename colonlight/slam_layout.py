@@ -167,6 +167,10 @@ def _looks_like_colmap(lines: list[str]) -> bool:
 
 def parse_camera(text: str, name: str) -> CameraFile:
     """Recognise and check a DSO ``camera.txt`` or a COLMAP ``cameras.txt``; ``InputError`` names ``name``."""
+    if text.startswith("\ufeff"):  # Windows editors save UTF-8 so; judged as DSO, it failed with a misleading cause
+        raise InputError(
+            f"{name}: starts with a byte-order mark (U+FEFF), which DSO and COLMAP do not read; save it without one"
+        )
     lines = text.splitlines()
     kind = "colmap" if _looks_like_colmap(lines) else "dso"
     try:

@@ -162,6 +162,14 @@ def test_malformed_or_missing_camera_file_is_a_usage_error(tmp_path: Path) -> No
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").rglob("*.png"))
 
 
+def test_a_camera_file_with_a_byte_order_mark_is_refused_saying_so() -> None:
+    """DSO and COLMAP read the mark as part of the first token; judged as DSO, the file failed as a malformed one."""
+    for text in (DSO_PINHOLE, COLMAP_TWO):
+        with pytest.raises(InputError, match=r"cam.txt: starts with a byte-order mark \(U\+FEFF\)"):
+            parse_camera("\ufeff" + text, "cam.txt")
+        assert parse_camera(text, "cam.txt").sizes  # the same file without it is taken
+
+
 # --------------------------------------------------------------------------------------------------- rescale
 
 
