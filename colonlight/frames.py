@@ -83,21 +83,42 @@ def is_image_folder(folder: Path) -> bool:
     return not any(is_video(Path(e.path)) for e in entries if not _is_image_name(e.name))
 
 
+_PILLOW_LIMIT_LOCK = threading.Lock()
+
+
+def _header_size_past_pillows_limit(path: Path) -> tuple[int, int]:
+    """The size in the header of an image past Pillow's decompression-bomb limit (> 179 Mpx), which refuses to
+    report it: read again with the limit off. Only the header is read (Pillow decodes nothing here; OpenCV decodes
+    the frames, after our own cap has judged this size). The limit is a module global of Pillow's, hence the lock,
+    and it is put back at once."""
+    from PIL import Image
+
+    with _PILLOW_LIMIT_LOCK:
+        limit = Image.MAX_IMAGE_PIXELS
+        Image.MAX_IMAGE_PIXELS = None
+        try:
+            with Image.open(path) as img:
+                return int(img.width), int(img.height)
+        finally:
+            Image.MAX_IMAGE_PIXELS = limit
+
+
 def check_image_size(path: Path, max_pixels: int | None = None) -> tuple[int, int] | None:
     """``(width, height)`` from the header of the image at ``path``, read without decoding its pixels (OpenCV,
     which decodes the frames, has no header-only reader; Pillow's ``open`` is lazy). None if Pillow cannot read
     the header (the decoder then reports the file). FrameTooLargeError if it gives more than ``max_pixels`` pixels
-    (None: the configured cap); Pillow's own decompression-bomb refusal (> 179 Mpx) counts as too large."""
+    (None: the configured cap), with the size; past Pillow's own decompression-bomb limit too (our cap decides)."""
     from PIL import Image
 
     cap = max_pixels_setting() if max_pixels is None else int(max_pixels)
     try:
         with warnings.catch_warnings():  # Pillow warns past 89 Mpx; our cap decides
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-            with Image.open(path) as img:
-                width, height = int(img.width), int(img.height)
-    except Image.DecompressionBombError:
-        raise FrameTooLargeError(path, 0, 0, cap) from None
+            try:
+                with Image.open(path) as img:
+                    width, height = int(img.width), int(img.height)
+            except Image.DecompressionBombError:
+                width, height = _header_size_past_pillows_limit(path)
     except Exception:  # noqa: BLE001 - unknown or broken header: the decoder reports it
         return None
     if width * height > cap:
