@@ -194,7 +194,7 @@ def test_an_output_that_is_a_file_is_refused_before_the_stream(tmp_path: Path, c
     note.write_text("keep me\n")
     for out, needle in ((note, "is a file, not a folder"), (note / "sub", f"lies under {note}, which is a file")):
         code, err = _stream(str(clips["small"]), "-o", str(out))
-        assert code == 1
+        assert code == 2  # an unusable --output is a usage error, as in `enhance`
         _one_error(err, f"{out}: {needle}")
         assert "waiting for frames" not in err  # refused before the source is opened
     assert note.read_text() == "keep me\n"
