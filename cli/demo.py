@@ -21,6 +21,7 @@ from colonlight import (
 from colonlight.limits import DEFAULT_FPS
 
 from .display import BatchDisplay, console, error_line
+from .interrupts import interruptible
 
 DEMO_SEED = 20210628  # the clip is rendered from "heldout" settings, never used to train the default model
 DEMO_FPS = 30.0  # the rate the clip is rendered at, as a recorder's; enhance takes DEFAULT_FPS of it
@@ -97,4 +98,4 @@ def demo(
 
 
 def register(app: typer.Typer) -> None:
-    app.command("demo")(demo)
+    app.command("demo")(interruptible(demo))  # SIGTERM as Ctrl-C: temporaries removed, exit 143

@@ -15,6 +15,7 @@ from colonlight.limits import DEFAULT_FPS
 
 from . import options
 from .display import console, error_line
+from .interrupts import interruptible
 
 TRAINING_SEEDS = range(1000, 1100)  # colonlight train's synthetic clips
 GATE_SEEDS = range(700_000, 700_024)  # benchmarks/quality_gate.py
@@ -352,4 +353,4 @@ def evaluate(
 
 
 def register(app: typer.Typer) -> None:
-    app.command("evaluate")(evaluate)
+    app.command("evaluate")(interruptible(evaluate))  # SIGTERM as Ctrl-C: temporaries removed, exit 143

@@ -12,6 +12,7 @@ from colonlight.methods.options import option
 
 from . import options
 from .display import console, error_line
+from .interrupts import interruptible
 
 
 def export(
@@ -68,4 +69,4 @@ def export(
 
 
 def register(app: typer.Typer) -> None:
-    app.command("export")(export)
+    app.command("export")(interruptible(export))  # SIGTERM as Ctrl-C: temporaries removed, exit 143

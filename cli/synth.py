@@ -9,6 +9,7 @@ import typer
 from colonlight.limits import DEFAULT_FPS, MAX_FPS
 
 from .display import console, error_line
+from .interrupts import interruptible
 from .options import MAX_RENDER_SIDE, clip_mix
 
 
@@ -75,4 +76,4 @@ def synth(
 
 
 def register(app: typer.Typer) -> None:
-    app.command("synth")(synth)
+    app.command("synth")(interruptible(synth))  # SIGTERM as Ctrl-C: temporaries removed, exit 143

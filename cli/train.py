@@ -14,6 +14,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from colonlight.limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE, MAX_MODEL_SIZE
 
 from .display import console, error_line, printable
+from .interrupts import interruptible
 from .options import MAX_RENDER_SIDE, check_fps, clip_mix, invocation
 
 if TYPE_CHECKING:
@@ -472,4 +473,4 @@ def _exit_if_skipped(skipped: list[str], where: str) -> None:
 
 
 def register(app: typer.Typer) -> None:
-    app.command("train")(train_cmd)
+    app.command("train")(interruptible(train_cmd))  # SIGTERM as Ctrl-C: temporaries removed, exit 143

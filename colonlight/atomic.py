@@ -7,6 +7,7 @@ filesystem is atomic, so after a crash or ``kill -9`` a file either exists compl
 
 from __future__ import annotations
 
+import glob
 import json
 import os
 import tempfile
@@ -132,6 +133,23 @@ def remove_stale_temporaries(folder: Path, recursive: bool = True) -> int:
     except OSError:  # a name too long for the file system (ENAMETOOLONG), an I/O error: nothing of ours is there
         return 0
     for p in folder.rglob(f"*{TMP_MARK}*") if recursive else folder.glob(f"*{TMP_MARK}*"):
+        if p.is_file():
+            p.unlink(missing_ok=True)
+            count += 1
+    return count
+
+
+def remove_stale_temporaries_of(dest: Path) -> int:
+    """Delete the temporaries an interrupted write of ``dest`` left beside it (:func:`new_temporary`'s names for
+    it, nothing else in its folder); return how many. For outputs written into a folder of the user's (``export
+    -o``), where a folder-wide sweep would be too broad."""
+    dest = Path(dest)
+    count = 0
+    try:
+        found = list(dest.parent.glob(f".{glob.escape(dest.name)}.*{TMP_MARK}*"))
+    except OSError:
+        return 0
+    for p in found:
         if p.is_file():
             p.unlink(missing_ok=True)
             count += 1

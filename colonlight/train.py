@@ -31,7 +31,7 @@ from kornia.metrics import ssim as kornia_ssim
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from .atomic import atomic_path, read_json, write_json_atomic
+from .atomic import atomic_path, read_json, remove_stale_temporaries, write_json_atomic
 from .checkpoint import load_weights, save_weights
 from .correction import apply_gain_gamma, apply_head, correct, gain_gamma_to_curve_map
 from .errors import InputError, OptionError
@@ -732,6 +732,9 @@ def _train_model_held(
 ) -> TrainResult:
     """:func:`train_model` once its folder is held."""
     run_dir = Path(run_dir)
+    # a run killed while saving a state or the weights left its temporary; held, nothing else writes here now
+    remove_stale_temporaries(run_dir, recursive=False)
+    remove_stale_temporaries(run_dir / "checkpoints", recursive=False)
     state_path = latest_state(run_dir) if resume else None
     if state_path is not None:  # before any clip is read: a state this run cannot continue fails at once
         _check_resumable(state_path, _read_state_meta(state_path), cfg)

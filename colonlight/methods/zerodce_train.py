@@ -20,6 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..atomic import remove_stale_temporaries_of
 from .zerodce_loss import EXPOSURE_LEVEL, EXPOSURE_PATCH, SPATIAL_REGION, LossWeights, zerodce_loss
 from .zerodce_net import VARIANTS, DceNet, apply_curves, build_net, count_parameters, save_zerodce_weights
 
@@ -197,5 +198,8 @@ def train_zerodce(
         },
         **(card_extra or {}),
     }
+    # a run killed while saving left the temporaries of the weights and card (NAME.json) beside them
+    remove_stale_temporaries_of(out_path)
+    remove_stale_temporaries_of(out_path.with_suffix(".json"))
     card = save_zerodce_weights(net, out_path, card)
     return ZeroDceTrainResult(weights=out_path, card=card, history=history)

@@ -28,7 +28,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..atomic import atomic_path, read_json, write_bytes_atomic, write_json_atomic
+from ..atomic import atomic_path, read_json, remove_stale_temporaries, write_bytes_atomic, write_json_atomic
 from ..discovery import SYNTH_FRAMES, SYNTH_MARKER, SYNTH_VIDEO
 from ..errors import InputError
 from ..limits import DEFAULT_FPS
@@ -169,6 +169,8 @@ def write_clip(
     out_dir.mkdir(parents=True, exist_ok=True)
     # a clip rendered here before (another config) stops being one now: interrupted, no marker says "complete"
     (out_dir / SYNTH_MARKER).unlink(missing_ok=True)
+    # what a run killed mid-clip left (clip.mp4's temporary lives as long as the render): nothing renames it now
+    remove_stale_temporaries(out_dir)
     scene = build_scene(cfg, seed)
     poses: list[str] = []
     per_frame: list[dict[str, Any]] = []
