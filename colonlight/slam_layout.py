@@ -87,6 +87,24 @@ _NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 _INTEGER = re.compile(r"[0-9]+")
 
 
+#: Blanks within a line as DSO (std::getline, sscanf) and COLMAP (std::getline, StringTrim, >>) read them: C's
+#: isspace. Python's splitlines() and split() also break at U+2028, U+0085, U+00A0, form feed as a line end and
+#: more, so a file the SLAM tool misreads would pass the check.
+_BLANKS = " \t\r\v\f"
+_BLANK_RUN = re.compile(f"[{re.escape(_BLANKS)}]+")
+
+
+def _lines(text: str) -> list[str]:
+    """The file's lines as DSO and COLMAP see them: split at "\\n" only, a CRLF file's "\\r" dropped."""
+    lines = [line.removesuffix("\r") for line in text.split("\n")]
+    return lines[:-1] if lines and lines[-1] == "" else lines
+
+
+def _tokens(line: str) -> list[str]:
+    """A line's whitespace-separated tokens, as C's streams and sscanf read them."""
+    return [t for t in _BLANK_RUN.split(line) if t]
+
+
 def _numbers(tokens: Sequence[str], what: str) -> list[float]:
     if not all(_NUMBER.fullmatch(t) for t in tokens):
         raise ValueError(f"{what}: expected numbers, got {' '.join(tokens)!r}")
@@ -97,15 +115,15 @@ def _numbers(tokens: Sequence[str], what: str) -> list[float]:
 
 
 def _size(line: str, what: str) -> Size:
-    tokens = line.split()
+    tokens = _tokens(line)
     if len(tokens) != 2 or not all(_INTEGER.fullmatch(t) for t in tokens) or min(int(t) for t in tokens) < 1:
-        raise ValueError(f"{what}: expected 'width height', got {line.strip()!r}")
+        raise ValueError(f"{what}: expected 'width height', got {line.strip(_BLANKS)!r}")
     return int(tokens[0]), int(tokens[1])
 
 
 def _dso_model(line: str) -> tuple[str, str, list[float]]:
     """DSO's first line as ``(model, prefix, parameters)``; ``prefix`` is the model word as written, or ''."""
-    tokens = line.split()
+    tokens = _tokens(line)
     if tokens and tokens[0] in DSO_MODELS:
         model, params = tokens[0], _numbers(tokens[1:], "line 1")
         if len(params) != DSO_MODELS[model]:
@@ -126,10 +144,10 @@ def _parse_dso(lines: list[str]) -> tuple[Size, ...]:
         )
     _dso_model(lines[0])
     in_size = _size(lines[1], "line 2 (input size)")
-    third = lines[2].strip()
+    third = lines[2].strip(_BLANKS)
     if (
         third not in _DSO_OUTPUT_WORDS
-        and len(_numbers(third.split(), "line 3 (crop, full, none or 'fx fy cx cy 0')")) != 5
+        and len(_numbers(_tokens(third), "line 3 (crop, full, none or 'fx fy cx cy 0')")) != 5
     ):
         raise ValueError("line 3: expected crop, full, none or 5 numbers (relative output intrinsics)")
     _size(lines[3], "line 4 (output size)")
@@ -138,7 +156,11 @@ def _parse_dso(lines: list[str]) -> tuple[Size, ...]:
 
 def _colmap_lines(lines: list[str]) -> list[tuple[int, list[str]]]:
     """The camera lines of a COLMAP cameras.txt as ``(line index, tokens)``; comments and blanks skipped."""
-    return [(i, line.split()) for i, line in enumerate(lines) if line.strip() and not line.lstrip().startswith("#")]
+    return [
+        (i, _tokens(line))
+        for i, line in enumerate(lines)
+        if line.strip(_BLANKS) and not line.lstrip(_BLANKS).startswith("#")
+    ]
 
 
 def _parse_colmap(lines: list[str]) -> tuple[Size, ...]:
@@ -171,7 +193,7 @@ def parse_camera(text: str, name: str) -> CameraFile:
         raise InputError(
             f"{name}: starts with a byte-order mark (U+FEFF), which DSO and COLMAP do not read; save it without one"
         )
-    lines = text.splitlines()
+    lines = _lines(text)
     kind = "colmap" if _looks_like_colmap(lines) else "dso"
     try:
         sizes = _parse_colmap(lines) if kind == "colmap" else _parse_dso(lines)
@@ -200,7 +222,7 @@ def _fmt(value: float) -> str:
 
 
 def _rescale_dso(cam: CameraFile, to: Size) -> str:
-    lines = cam.text.splitlines()
+    lines = _lines(cam.text)
     (w0, h0), (w1, h1) = cam.sizes[0], to
     sx, sy = w1 / w0, h1 / h0
     model, prefix, p = _dso_model(lines[0])
@@ -216,7 +238,7 @@ def _rescale_dso(cam: CameraFile, to: Size) -> str:
 
 
 def _rescale_colmap(cam: CameraFile, to: Size) -> str:
-    lines = cam.text.splitlines()
+    lines = _lines(cam.text)
     for i, tokens in _colmap_lines(lines):
         model, (w0, h0) = tokens[1], (int(tokens[2]), int(tokens[3]))
         if model not in COLMAP_MODELS:

@@ -170,6 +170,23 @@ def test_a_camera_file_with_a_byte_order_mark_is_refused_saying_so() -> None:
         assert parse_camera(text, "cam.txt").sizes  # the same file without it is taken
 
 
+def test_camera_files_are_split_as_dso_and_colmap_split_them() -> None:
+    """Lines at "\\n" only and tokens at C's blanks: Python's splitlines() and split() also break at U+2028, NEL,
+    no-break spaces and form feeds, so a file those tools misread (one line, one token) was accepted."""
+    crlf = DSO_PINHOLE.replace("\n", "\r\n")
+    assert parse_camera(crlf, "c.txt").sizes == parse_camera(DSO_PINHOLE, "c.txt").sizes == ((128, 96),)
+    assert parse_camera(COLMAP_TWO.replace("\n", "\r\n"), "c.txt").sizes == ((640, 480), (640, 480))
+    assert parse_camera(DSO_PINHOLE.replace(" ", "\t"), "c.txt").sizes == ((128, 96),)  # tabs are blanks in C too
+    for bad in (
+        DSO_PINHOLE.replace("\n", "\u2028"),  # one line to DSO
+        DSO_PINHOLE.replace("\n", "\x0c"),
+        DSO_PINHOLE.replace("128 96", "128\u00a096"),  # one token to sscanf
+        COLMAP_TWO.replace("640 480", "640\u2003480"),
+    ):
+        with pytest.raises(InputError, match="c.txt: not a valid"):
+            parse_camera(bad, "c.txt")
+
+
 # --------------------------------------------------------------------------------------------------- rescale
 
 
