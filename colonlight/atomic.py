@@ -11,7 +11,7 @@ import glob
 import json
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -125,18 +125,13 @@ def write_json_atomic(dest: Path, obj: Any) -> None:
 def remove_stale_temporaries(folder: Path, recursive: bool = True) -> int:
     """Delete temporaries left in ``folder`` (and, if ``recursive``, below it) by an interrupted run; return how
     many."""
-    count = 0
     folder = Path(folder)
     try:
         if not folder.is_dir():
             return 0
     except OSError:  # a name too long for the file system (ENAMETOOLONG), an I/O error: nothing of ours is there
         return 0
-    for p in folder.rglob(f"*{TMP_MARK}*") if recursive else folder.glob(f"*{TMP_MARK}*"):
-        if p.is_file():
-            p.unlink(missing_ok=True)
-            count += 1
-    return count
+    return _delete_files(folder.rglob(f"*{TMP_MARK}*") if recursive else folder.glob(f"*{TMP_MARK}*"))
 
 
 def remove_stale_temporaries_of(dest: Path) -> int:
@@ -144,12 +139,17 @@ def remove_stale_temporaries_of(dest: Path) -> int:
     it, nothing else in its folder); return how many. For outputs written into a folder of the user's (``export
     -o``), where a folder-wide sweep would be too broad."""
     dest = Path(dest)
-    count = 0
     try:
         found = list(dest.parent.glob(f".{glob.escape(dest.name)}.*{TMP_MARK}*"))
     except OSError:
         return 0
-    for p in found:
+    return _delete_files(found)
+
+
+def _delete_files(paths: Iterable[Path]) -> int:
+    """Delete those of ``paths`` that are files (a folder of a matching name is not ours); return how many."""
+    count = 0
+    for p in paths:
         if p.is_file():
             p.unlink(missing_ok=True)
             count += 1
