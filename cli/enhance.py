@@ -3,11 +3,7 @@
 from __future__ import annotations
 
 import logging
-import signal
-import threading
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import typer
@@ -39,35 +35,8 @@ from colonlight.limits import (
 
 from . import options
 from .display import BatchDisplay, console, error_line, problem_line, summary
+from .interrupts import INTERRUPTED, exit_code, signals_interrupt
 from .loading import imports_frozen, load_method_or_exit
-
-INTERRUPTED = "interrupted; rerun the same command to resume"
-
-
-@contextmanager
-def _stop_signals_interrupt() -> Iterator[list[int]]:
-    """SIGINT (Ctrl-C) and SIGTERM (``kill``, ``docker stop``) both interrupt the batch, once: a second signal
-    during the clean-up is ignored, so that the clean-up finishes. Yields the list the signal's number lands in.
-
-    Outside the main thread (where signal handlers cannot be set) nothing changes.
-    """
-    received: list[int] = []
-    if threading.current_thread() is not threading.main_thread():
-        yield received
-        return
-
-    def handler(signum: int, frame: object) -> None:
-        if received:
-            return
-        received.append(signum)
-        raise KeyboardInterrupt
-
-    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield received
-    finally:
-        for s, h in previous.items():
-            signal.signal(s, h)
 
 
 def enhance(
@@ -158,12 +127,12 @@ def enhance(
     except OptionError as exc:
         raise typer.BadParameter(str(exc)) from exc
     spec = MethodSpec.of(method, **options.method_kwargs(ctx, method)[method])
-    with _stop_signals_interrupt() as received:
+    with signals_interrupt() as received:
         try:
             failed = _run(inputs, output, spec, clip_opts, pattern, workers, cluster, overwrite, quiet, debug)
         except KeyboardInterrupt:
             console.print(INTERRUPTED, markup=False)
-            raise typer.Exit(143 if received == [signal.SIGTERM] else 130) from None
+            raise typer.Exit(exit_code(received)) from None
     if failed:
         raise typer.Exit(1)
 

@@ -15,6 +15,7 @@ from colonlight import ColonlightError, __version__
 
 from . import demo, enhance, evaluate, export, info, stream, synth, train
 from .display import FlagsWithoutType, error_line
+from .interrupts import INTERRUPTED
 
 app = typer.Typer(
     name="colonlight",
@@ -62,13 +63,13 @@ def run() -> None:
         error_line(str(exc))
         sys.exit(1)
     except KeyboardInterrupt:
-        error_line("interrupted; rerun the same command to resume")
+        error_line(INTERRUPTED)
         sys.exit(130)
     except SystemExit as exc:
         # typer turns Ctrl-C inside a command into a silent exit 130 (Exit raised from the KeyboardInterrupt);
         # commands that handle the signal themselves (enhance, stream) say so and raise Exit(130) from None
         if isinstance(exc.__context__, typer.Exit) and isinstance(exc.__context__.__cause__, KeyboardInterrupt):
-            error_line("interrupted; rerun the same command to resume")
+            error_line(INTERRUPTED)
         raise
 
 
