@@ -7,21 +7,16 @@ from __future__ import annotations
 import signal
 import sys
 
+from .interrupts import exit_code, signals_interrupt
+
 
 def run() -> None:
     """Load the command line, then run it (``colonlight_cli.main.run``)."""
-    terminated: list[int] = []
-
-    def on_sigterm(signum: int, frame: object) -> None:
-        terminated.append(signum)
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGTERM, on_sigterm)
-    try:
-        from .main import run as run_app
-    except KeyboardInterrupt:
-        sys.stderr.write("error: interrupted\n")
-        raise SystemExit(143 if terminated else 130) from None
-    finally:
-        signal.signal(signal.SIGTERM, previous)  # from here each command handles it as it must (serve: uvicorn's)
+    # the handler is put back once loaded: from there each command handles SIGTERM as it must (serve: uvicorn's)
+    with signals_interrupt((signal.SIGTERM,)) as received:
+        try:
+            from .main import run as run_app
+        except KeyboardInterrupt:
+            sys.stderr.write("error: interrupted\n")
+            raise SystemExit(exit_code(received)) from None
     run_app()

@@ -4,7 +4,9 @@ Python's default for SIGTERM is to die on the spot: no ``finally`` runs, so a wr
 a render pool its workers' semaphores, and the shell saw no word of why. Raised as a ``KeyboardInterrupt`` instead,
 the atomic writers delete their temporaries, pools shut down, and the command ends with one line and exit code 143
 (130 for Ctrl-C). ``enhance`` takes SIGINT this way too (its batch's clean-up must not be cut short by a second
-Ctrl-C); ``stream`` stops its source gracefully instead; ``serve`` leaves signals to uvicorn.
+Ctrl-C); ``stream`` stops its source gracefully instead; ``serve`` leaves signals to uvicorn. The console
+script's entry (``entry.py``) takes SIGTERM this way while the command line loads, so this module imports
+nothing heavy at its top.
 """
 
 from __future__ import annotations
@@ -15,10 +17,6 @@ import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import ParamSpec, TypeVar
-
-import typer
-
-from .display import error_line
 
 INTERRUPTED = "interrupted; rerun the same command to resume"
 
@@ -62,6 +60,9 @@ def exit_code(received: list[int]) -> int:
 def interruptible(command: Callable[P, R]) -> Callable[P, R]:
     """``command`` with SIGTERM raised as ``KeyboardInterrupt`` while it runs (:func:`signals_interrupt`), and
     either signal ending it with :data:`INTERRUPTED` and :func:`exit_code`. The signature is kept, for typer."""
+    import typer
+
+    from .display import error_line
 
     @functools.wraps(command)
     def run(*args: P.args, **kwargs: P.kwargs) -> R:
