@@ -19,6 +19,7 @@ from pathlib import Path
 import av
 import numpy as np
 
+from colonlight.metrics import psnr
 from colonlight.video_writer import X264_PARAMS, VideoWriter
 
 from .common import clip_cache, markdown_table
@@ -49,11 +50,9 @@ def _encode(frames: list[np.ndarray], path: Path, x264_params: str) -> tuple[int
     data = path.read_bytes()
     with av.open(str(path)) as container:
         decoded = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
-    psnr = [
-        10.0 * np.log10(255.0**2 / max(float(np.mean((a.astype(np.float64) - b) ** 2)), 1e-12))
-        for a, b in zip(decoded, frames, strict=True)
-    ]
-    return len(data), hashlib.sha256(data).hexdigest(), float(np.mean(psnr))
+    whole = np.ones(frames[0].shape[:2], dtype=bool)
+    per_frame = [psnr(a, b, whole) for a, b in zip(decoded, frames, strict=True)]
+    return len(data), hashlib.sha256(data).hexdigest(), float(np.mean(per_frame))
 
 
 def main(argv: list[str] | None = None) -> str:
