@@ -291,3 +291,20 @@ def make_noise_clip(
     args = ["-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-framerate", str(fps), "-i", "-"]
     _run([*args, *X264, "-y", str(path)], stdin=raw)
     return path
+
+
+def flat_png(width: int, height: int, level: int = 0, rows: int | None = None) -> bytes:
+    """A valid 8-bit grey PNG whose header declares ``width x height``, every pixel ``level``, compressed row by
+    row: a huge image in a few tens of kB, never held uncompressed. ``rows`` (default: all) writes only the first
+    rows: a header any reader takes, image data that ends early."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    packer = zlib.compressobj(6)
+    row = b"\x00" + bytes([level]) * width  # filter byte "none", then the row
+    data = b"".join(packer.compress(row) for _ in range(height if rows is None else rows)) + packer.flush()
+    header = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)  # 8-bit greyscale
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", data) + chunk(b"IEND", b"")

@@ -37,6 +37,8 @@ from colonlight.frames import iter_image_folder, read_image
 from colonlight.live import StreamOptions
 from colonlight.slam_layout import parse_camera
 
+from ..media import flat_png
+
 
 def test_nan_and_infinities_in_a_float_frame_are_defined_and_silent(tmp_path: Path) -> None:
     bgr = np.full((6, 8, 3), 0.5, np.float32)
@@ -122,18 +124,6 @@ def test_a_y4m_header_ffmpeg_refuses_is_not_called_a_busy_device(tmp_path: Path,
     assert str(err.value).startswith(f"{path}: not a video FFmpeg can open: it refuses the file's header ("), err.value
 
 
-def _png_declaring(width: int, height: int) -> bytes:
-    """A small PNG (8-bit RGB) whose header declares ``width`` x ``height``: a few bytes of data, then its end."""
-    import struct
-    import zlib
-
-    def chunk(kind: bytes, data: bytes = b"") -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
-
-    ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 100)) + chunk(b"IEND")
-
-
 def test_an_image_past_pillows_bomb_limit_is_judged_by_our_cap_with_its_size(tmp_path: Path) -> None:
     """Pillow refuses to report a size past 179 Mpx (its decompression-bomb check): the error said "frames of
     unknown size exceed the pixel cap ... raise it with COLONLIGHT_MAX_PIXELS", and raising it did not help."""
@@ -142,7 +132,7 @@ def test_an_image_past_pillows_bomb_limit_is_judged_by_our_cap_with_its_size(tmp
     from colonlight.frames import check_image_size
 
     path = tmp_path / "huge.png"
-    path.write_bytes(_png_declaring(20000, 20000))  # 400 Mpx
+    path.write_bytes(flat_png(20000, 20000, rows=0))  # 400 Mpx declared
     limit = Image.MAX_IMAGE_PIXELS
     with pytest.raises(FrameTooLargeError, match=r"huge.png: frames of 20000x20000 \(400.0 Mpx\) exceed") as err:
         check_image_size(path, max_pixels=4096 * 4096)

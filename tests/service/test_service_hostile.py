@@ -7,10 +7,8 @@ from __future__ import annotations
 
 import contextlib
 import json
-import struct
 import subprocess
 import time
-import zlib
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -21,7 +19,7 @@ from colonlight_service.settings import Settings
 from colonlight import pipeline
 from colonlight.limits import DEFAULT_MAX_PIXELS, MAX_PIXELS_ENV
 
-from ..media import ffmpeg_exe, make_clip, make_vfr_clip, needs_ffmpeg, truncated_copy
+from ..media import ffmpeg_exe, flat_png, make_clip, make_vfr_clip, needs_ffmpeg, truncated_copy
 from ..service_server import ServiceServer
 from .test_service import assert_json_error, leftovers, wait_done
 from .test_service_restart import wait_running
@@ -31,23 +29,10 @@ pytestmark = [needs_ffmpeg, pytest.mark.timeout(240)]
 MiB = 1024 * 1024
 
 
-def png_gray(width: int, height: int) -> bytes:
-    """A flat grey PNG, compressed row by row: ``width x height`` pixels in a few KB, never held uncompressed."""
-
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
-
-    packer = zlib.compressobj(6)
-    row = b"\x00" + b"\x80" * width  # filter byte "none", then the row
-    idat = b"".join(packer.compress(row) for _ in range(height)) + packer.flush()
-    header = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)  # 8-bit greyscale
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
-
-
 def pixel_bomb(path: Path, side: int = 8000, frames: int = 6) -> Path:
     """``frames`` frames of ``side x side`` in a file of about half a MB (the frames are stream-copied)."""
     still = path.with_suffix(".png")
-    still.write_bytes(png_gray(side, side))
+    still.write_bytes(flat_png(side, side, level=0x80))
     exe = ffmpeg_exe()
     assert exe is not None
     subprocess.run(

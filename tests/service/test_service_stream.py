@@ -15,7 +15,6 @@ import struct
 import subprocess
 import sys
 import time
-import zlib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -29,7 +28,7 @@ from websockets.sync.client import ClientConnection, connect
 
 from colonlight.methods import create_method
 
-from ..media import make_clip
+from ..media import flat_png, make_clip
 from ..service_server import ServiceServer
 
 pytestmark = pytest.mark.timeout(120)
@@ -127,19 +126,6 @@ def jpeg(rgb: np.ndarray, quality: int = 90) -> bytes:
 
 def decode(data: bytes) -> np.ndarray:
     return cv2.cvtColor(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
-
-
-def png_bomb(width: int, height: int) -> bytes:
-    """A valid grey PNG of ``width x height`` zeros: tens of kB that would decode to ``width * height * 3`` bytes."""
-
-    def chunk(kind: bytes, body: bytes) -> bytes:
-        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
-
-    comp = zlib.compressobj(9)
-    row = b"\x00" * (width + 1)  # filter byte + one byte per pixel
-    data = b"".join(comp.compress(row) for _ in range(height)) + comp.flush()
-    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", data) + chunk(b"IEND", b"")
 
 
 def engine_run(weights: Path, frames: list[np.ndarray]) -> list[tuple[float | None, np.ndarray]]:
@@ -296,7 +282,7 @@ def test_bad_frames_and_messages_are_skipped(server: ServiceServer, weights: Pat
         (b"", "bad_frame", "not a JPEG or PNG image (0 bytes"),
         (jpeg(good[0])[:20], "bad_frame", "truncated JPEG"),
         (png(good[0])[:60], "bad_frame", "could not be decoded"),
-        (png_bomb(8000, 8000), "bad_frame", "8000x8000 = 64000000 pixels, over the limit"),
+        (flat_png(8000, 8000), "bad_frame", "8000x8000 = 64000000 pixels, over the limit"),
         ("not json", "bad_message", "must be a JSON object"),
         (json.dumps({"no": "type"}), "bad_message", 'with a "type"'),
         (json.dumps({"type": "dance"}), "bad_message", "unknown message type 'dance'"),
