@@ -21,6 +21,7 @@ from colonlight import (
 from colonlight.limits import DEFAULT_FPS
 
 from .display import BatchDisplay, console, error_line
+from .failures import USAGE, ends_command
 from .interrupts import interruptible
 
 DEMO_SEED = 20210628  # the clip is rendered from "heldout" settings, never used to train the default model
@@ -44,11 +45,8 @@ def demo(
     from colonlight import OutputError, prepare_output
     from colonlight.synth import SYNTH_VIDEO, SynthConfig, clip_complete, write_clip
 
-    try:  # an output that is a file (or under one) was a NotADirectoryError traceback
+    with ends_command(USAGE, kinds=(OutputError,)):  # an output that is a file (or under one) was a traceback
         prepare_output(output)
-    except OutputError as exc:
-        error_line(str(exc))
-        raise typer.Exit(2) from None
     clip_dir = output / "input"
     cfg = SynthConfig.sample(
         np.random.default_rng(DEMO_SEED),

@@ -10,7 +10,6 @@ import typer
 
 from colonlight import (
     ClipOptions,
-    ColonlightError,
     ManifestError,
     MethodSpec,
     OptionError,
@@ -35,6 +34,7 @@ from colonlight.limits import (
 
 from . import options
 from .display import BatchDisplay, console, error_line, problem_line, summary
+from .failures import USAGE, ends_command
 from .interrupts import INTERRUPTED, exit_code, signals_interrupt
 from .loading import imports_frozen, load_method_or_exit
 
@@ -107,11 +107,8 @@ def enhance(
     if fmt not in ("png", "jpg"):
         raise typer.BadParameter("choose png or jpg", param_hint="--format")
     options.check_fps(fps)
-    try:
+    with ends_command(USAGE, debug):
         cam = None if camera is None else read_camera(camera)
-    except ColonlightError as exc:
-        error_line(str(exc))
-        raise typer.Exit(2) from None
     try:
         clip_opts = ClipOptions(
             fps=fps or None,

@@ -15,6 +15,7 @@ from colonlight.limits import DEFAULT_FPS
 
 from . import options
 from .display import console, error_line
+from .failures import FAILED, USAGE, ends_command
 from .interrupts import interruptible
 
 TRAINING_SEEDS = range(1000, 1100)  # colonlight train's synthetic clips
@@ -251,11 +252,8 @@ def evaluate(
         content = parse_content_mode(content)
     except ColonlightError as exc:
         raise typer.BadParameter(str(exc), param_hint="--content") from None
-    try:
+    with ends_command(USAGE, debug):
         require_extras(colmap)
-    except ColonlightError as exc:
-        error_line(str(exc))
-        raise typer.Exit(2) from None
     # only now: the evaluation's own modules import the extra's packages
     from colonlight.evaluation import (
         evaluate_clips,
@@ -271,11 +269,9 @@ def evaluate(
         raise typer.BadParameter("give clips to evaluate, or --synthetic N", param_hint="INPUTS")
     from colonlight import OutputError, prepare_output
 
-    try:  # before any work: an output that is a file or cannot be written is one line, not a traceback at the end
+    # before any work: an output that is a file or cannot be written is one line, not a traceback at the end
+    with ends_command(USAGE, debug, kinds=(OutputError,)):
         prepare_output(output)
-    except OutputError as exc:
-        error_line(str(exc))
-        raise typer.Exit(2) from None
     rows = [*names, *(["rnn"] if authors_checkpoint is not None and "rnn" not in names else [])]
     specs = method_list(names, authors_checkpoint, chosen=options.method_kwargs(ctx, *rows))
     if authors_checkpoint is not None and not authors_checkpoint.is_file():
@@ -317,19 +313,13 @@ def evaluate(
         error_line("no clips found in " + ", ".join(str(p) for p in inputs or []))
         raise typer.Exit(1)
 
-    with _Display(len(refs), len(specs) + (3 if oracles else 0), quiet) as display:
-        try:
-            result = evaluate_clips(
-                refs, specs, colmap=colmap, tracker=tracker, max_size=max_size or None, fps=fps,
-                max_frames=max_frames or None, threads=threads, progress=display.event,
-                brightness=brightness, oracles=oracles, content=content,
-                cache_dir=output / "cache" if cache else None,
-            )  # fmt: skip
-        except ColonlightError as exc:
-            if debug:
-                raise
-            error_line(str(exc))
-            raise typer.Exit(1) from None
+    with _Display(len(refs), len(specs) + (3 if oracles else 0), quiet) as display, ends_command(FAILED, debug):
+        result = evaluate_clips(
+            refs, specs, colmap=colmap, tracker=tracker, max_size=max_size or None, fps=fps,
+            max_frames=max_frames or None, threads=threads, progress=display.event,
+            brightness=brightness, oracles=oracles, content=content,
+            cache_dir=output / "cache" if cache else None,
+        )  # fmt: skip
     if not result.methods:
         error_line("no method could be run: " + "; ".join(f"{k}: {v}" for k, v in result.skipped_methods.items()))
         raise typer.Exit(1)

@@ -6,12 +6,13 @@ from pathlib import Path
 
 import typer
 
-from colonlight.errors import ColonlightError, OptionError
+from colonlight.errors import OptionError
 from colonlight.limits import DEFAULT_MODEL_SIZE, MAX_MODEL_SIZE, MIN_MODEL_SIZE
 from colonlight.methods.options import option
 
 from . import options
-from .display import console, error_line
+from .display import console
+from .failures import FAILED, ends_command
 from .interrupts import interruptible
 
 
@@ -36,8 +37,8 @@ def export(
     debug: bool = options.Debug,
 ) -> None:
     """Write the step graph (frame, h, c -> a, h_out, c_out) for ONNX Runtime hosts, checked against torch."""
-    try:
-        from colonlight import export_onnx, load_weights, onnx_sidecar_path, parse_model_size
+    with ends_command(FAILED, debug):
+        from colonlight import OutputError, export_onnx, load_weights, onnx_sidecar_path, parse_model_size
 
         try:
             checked = option("model_size").parse(model_size or "auto")  # the range enhance and the service take
@@ -49,17 +50,10 @@ def export(
             raise typer.BadParameter(
                 "the graph has a fixed input size: give a number or 'auto'", param_hint="--model-size"
             )
-        record = export_onnx(loaded, output, size)
-    except ColonlightError as exc:
-        if debug:
-            raise
-        error_line(str(exc))
-        raise typer.Exit(1) from None
-    except OSError as exc:
-        if debug:
-            raise
-        error_line(f"{output}: cannot write ({exc.strerror or exc})")
-        raise typer.Exit(1) from None
+        try:
+            record = export_onnx(loaded, output, size)
+        except OSError as exc:  # a disk full or a read-only folder: the output named, one line
+            raise OutputError(f"{output}: cannot write ({exc.strerror or exc})") from exc
     check = record["check"]["onnxruntime_vs_torch_max_abs_diff"]
     outputs = ", ".join(o["name"] for o in record["outputs"])
     console.print(f"wrote {output} (opset {record['onnx']['opset']}, input {size}x{size}, outputs {outputs})")

@@ -6,11 +6,9 @@ import gc
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-import typer
+from colonlight import Method, MethodSpec, warm_method
 
-from colonlight import ColonlightError, Method, MethodSpec, warm_method
-
-from .display import error_line
+from .failures import USAGE, ends_command
 
 
 @contextmanager
@@ -30,10 +28,5 @@ def imports_frozen() -> Iterator[None]:
 def load_method_or_exit(spec: MethodSpec, debug: bool) -> Method:
     """The method of ``spec``, built now: a bad checkpoint or an absent device stops the command here, as a usage
     error (exit status 2, one line; the traceback with ``--debug``)."""
-    try:
+    with ends_command(USAGE, debug):  # OptionError, CheckpointError, DeviceError
         return warm_method(spec)
-    except ColonlightError as exc:  # OptionError, CheckpointError, DeviceError
-        if debug:
-            raise
-        error_line(str(exc))
-        raise typer.Exit(2) from None

@@ -12,7 +12,6 @@ from typing import Any
 import typer
 
 from colonlight import (
-    ColonlightError,
     MethodSpec,
     OptionError,
     available_methods,
@@ -36,6 +35,7 @@ from colonlight.live import (
 
 from . import options
 from .display import console, error_line
+from .failures import FAILED, USAGE, ends_command
 from .loading import imports_frozen, load_method_or_exit
 
 
@@ -213,21 +213,11 @@ def stream(
     spec = MethodSpec.of(method, **options.method_kwargs(ctx, method)[method])
     with imports_frozen():  # as in `enhance`
         engine = load_method_or_exit(spec, debug)  # a bad checkpoint or absent device: a usage error, as in `enhance`
-        try:
+        with ends_command(FAILED, debug):
             src = parse_source(source, input_format, _input_options(input_option))
-        except ColonlightError as exc:
-            if debug:
-                raise
-            error_line(str(exc))
-            raise typer.Exit(1) from None
-        try:
-            if output is not None:
+        if output is not None:
+            with ends_command(USAGE, debug):  # an --output that cannot be used: a usage error, as in `enhance`
                 prepare_output_dir(output, overwrite)
-        except ColonlightError as exc:  # an --output that cannot be used: a usage error, as in `enhance`
-            if debug:
-                raise
-            error_line(str(exc))
-            raise typer.Exit(2) from None
     if "torch" in sys.modules:  # the method uses torch: its threads as `enhance` sets them (one for the small net)
         sys.modules["torch"].set_num_threads(network_threads(spec, 1))
     reuse_frame_memory()
@@ -243,11 +233,8 @@ def stream(
     notify = (
         (lambda message: None) if quiet else (lambda message: console.print(f"[yellow]{message}[/]", soft_wrap=True))
     )
-    try:
+    with ends_command(FAILED, debug):
         live = LiveStream(src, engine, opts, plan, notify=notify)
-    except ColonlightError as exc:
-        error_line(str(exc))
-        raise typer.Exit(1) from None
 
     def on_signal(signum: int, _frame: Any) -> None:
         live.stop("stopped (Ctrl-C)" if signum == signal.SIGINT else "stopped (SIGTERM)")

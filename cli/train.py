@@ -14,6 +14,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from colonlight.limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE, MAX_MODEL_SIZE
 
 from .display import console, error_line, printable
+from .failures import FAILED, ends_command
 from .interrupts import interruptible
 from .options import MAX_RENDER_SIDE, check_fps, clip_mix, invocation
 
@@ -394,11 +395,8 @@ def _export_epoch(run_dir: Path, epoch: int) -> None:
     """``--export-epoch``: one epoch of a run as weights, or a one-line error (exit 1)."""
     from colonlight import InputError, export_epoch
 
-    try:
+    with ends_command(FAILED, kinds=(InputError,)):
         result = export_epoch(run_dir, epoch)
-    except InputError as exc:
-        error_line(str(exc))
-        raise typer.Exit(1) from None
     console.print(f"weights: {result.weights}\ncard:    {result.weights.with_suffix('.json')}")
 
 
