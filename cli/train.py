@@ -372,9 +372,16 @@ def _check_name(name: str) -> None:
 
 def _check_output(output: Path) -> None:
     """A usage error, before anything is rendered or trained, for an OUTPUT that can never be the run's folder:
-    a file, or a path under one (it was a traceback after the first epoch). Nothing is created here."""
+    a file, a path under one (it was a traceback after the first epoch), or a name too long. Nothing is created
+    here."""
     for path in (output, *output.parents):
-        if path.exists():
+        try:
+            exists = path.exists()
+        except OSError as exc:  # a name past NAME_MAX (ENAMETOOLONG): Path.exists raises it, a traceback before
+            raise typer.BadParameter(
+                f"{output}: cannot be used: {exc.strerror or exc}", param_hint="--output"
+            ) from None
+        if exists:
             if not path.is_dir():
                 what = "the output path is a file" if path == output else f"{path} is a file"
                 raise typer.BadParameter(f"{output}: {what}, not a folder", param_hint="--output")

@@ -7,9 +7,11 @@ filesystem is atomic, so after a crash or ``kill -9`` a file either exists compl
 
 from __future__ import annotations
 
+import errno
 import glob
 import json
 import os
+import stat
 import tempfile
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -111,10 +113,26 @@ def parse_json(text: str | bytes) -> Any:
         raise ValueError("JSON nested too deep to decode") from None
 
 
+def read_regular_file(path: Path) -> bytes:
+    """The bytes of the regular file at ``path`` (links followed); ``OSError`` if it cannot be read, or if it is a
+    FIFO, socket or device. Opened plainly, a FIFO with no writer blocks its reader forever: a ``manifest.json``
+    or ``gammas.json`` that was one hung ``colonlight enhance`` without a word, as did ``--camera FIFO``. It is
+    opened non-blocking and its type checked on the open file before a byte is read."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise OSError(errno.EINVAL, "not a regular file (a FIFO, socket or device)", str(path))
+        os.set_blocking(fd, True)
+        with open(fd, "rb", closefd=False) as f:
+            return f.read()
+    finally:
+        os.close(fd)
+
+
 def read_json(path: Path) -> Any:
-    """The JSON value in the UTF-8 file at ``path``: ``OSError`` if it cannot be read, ``ValueError`` if it is not
-    JSON (:func:`parse_json`)."""
-    return parse_json(Path(path).read_text(encoding="utf-8"))
+    """The JSON value in the UTF-8 file at ``path``: ``OSError`` if it cannot be read (or is no regular file:
+    :func:`read_regular_file`), ``ValueError`` if it is not JSON (:func:`parse_json`)."""
+    return parse_json(read_regular_file(Path(path)).decode("utf-8"))
 
 
 def write_json_atomic(dest: Path, obj: Any) -> None:

@@ -9,6 +9,8 @@ from .errors import DeviceError
 
 def resolve_device(spec: str = "auto") -> torch.device:
     """Turn ``auto | cpu | cuda | cuda:N`` into a ``torch.device``; raise :class:`DeviceError` if it is absent."""
+    if spec is not None and not isinstance(spec, str):  # 5 or torch.device(...): not an AttributeError of str's
+        raise DeviceError(f"device must be auto, cpu, cuda or cuda:N (text), got {spec!r}")
     spec = (spec or "auto").strip().lower()
     if spec == "auto":
         return torch.device("cuda:0" if torch.cuda.is_available() else "cpu")
@@ -16,7 +18,8 @@ def resolve_device(spec: str = "auto") -> torch.device:
         return torch.device("cpu")
     if spec == "cuda" or spec.startswith("cuda:"):
         index_text = spec.partition(":")[2] or "0"
-        if not index_text.isdigit():
+        # isdecimal and ASCII: "cuda:²" passed isdigit and failed in int() with a ValueError traceback
+        if not (index_text.isascii() and index_text.isdecimal()) or len(index_text) > 6:
             raise DeviceError(f"device {spec!r}: expected cuda or cuda:N with N a number")
         index = int(index_text)
         if not torch.cuda.is_available():

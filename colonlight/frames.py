@@ -12,6 +12,8 @@ allowed as long as they are not videos. Frames are taken in natural order (``fra
 from __future__ import annotations
 
 import contextlib
+import errno
+import math
 import os
 import re
 import threading
@@ -23,13 +25,15 @@ import cv2
 import numpy as np
 
 from .atomic import write_bytes_atomic
-from .errors import FrameTooLargeError, InputError
+from .errors import FrameTooLargeError, InputError, OptionError
 from .limits import DEFAULT_FPS, DEFAULT_JPEG_QUALITY, max_pixels_setting
 from .video import DecodedFrame, is_video
 
 IMAGE_SUFFIXES: frozenset[str] = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"})
 
 _DIGITS = re.compile(r"([0-9]+)")
+#: The longest side a JPEG frame may have (the format's 16-bit sizes, less libjpeg's margin).
+MAX_JPEG_SIDE = 65500
 
 
 def natural_key(name: str) -> tuple[tuple[tuple[int, int, str], ...], str]:
@@ -43,9 +47,11 @@ def natural_key(name: str) -> tuple[tuple[tuple[int, int, str], ...], str]:
 
 
 def _visible_files(folder: Path) -> list[os.DirEntry[str]]:
+    """The folder's visible entries that are not sub-folders: its files, and the frame-named entries that cannot
+    be read as files (a dangling link, a link loop, a FIFO), which :func:`list_image_frames` reports."""
     try:
         with os.scandir(folder) as it:
-            return [e for e in it if not e.name.startswith(".") and e.is_file()]
+            return [e for e in it if not e.name.startswith(".") and _entry_problem(e) != "folder"]
     except FileNotFoundError as exc:
         raise InputError(f"{folder}: folder not found (moved or deleted?)") from exc
     except NotADirectoryError as exc:
@@ -60,13 +66,40 @@ def _is_image_name(name: str) -> bool:
     return os.path.splitext(name)[1].lower() in IMAGE_SUFFIXES
 
 
+def _entry_problem(entry: os.DirEntry[str]) -> str | None:
+    """None for a regular file (links followed), ``"folder"`` for a folder, else why it cannot be read as a file.
+
+    ``DirEntry.is_file`` raises for a link loop (ELOOP): unguarded, that made a whole frame folder "cannot list
+    folder", so a batch dropped it without a line. A dangling link or a FIFO named ``0042.png`` was dropped from
+    the clip without a word, shifting every later frame's time: each is now the clip's one-line failure, and a
+    FIFO is never opened (reading one would wait forever for a writer)."""
+    try:
+        if entry.is_file():
+            return None
+        if entry.is_dir():
+            return "folder"
+        os.stat(entry.path)  # a dangling link or a loop raises here; anything else is no regular file
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "symbolic link loop"
+        if exc.errno == errno.ENOENT:
+            return "not found (a dangling link, or moved or deleted?)"
+        return exc.strerror or str(exc)
+    return "not a regular file (a FIFO, socket or device)"
+
+
 def list_image_frames(folder: Path) -> list[Path]:
-    """The image files of ``folder`` in natural order; InputError if it has none or cannot be read."""
+    """The image files of ``folder`` in natural order; InputError if it has none, cannot be read, or holds an
+    entry named like a frame that cannot be read as a file (naming it: a frame lost silently shifts the clip)."""
     folder = Path(folder)
-    names = sorted((e.name for e in _visible_files(folder) if _is_image_name(e.name)), key=natural_key)
-    if not names:
+    entries = sorted((e for e in _visible_files(folder) if _is_image_name(e.name)), key=lambda e: natural_key(e.name))
+    if not entries:
         raise InputError(f"{folder}: folder holds no frame images ({', '.join(sorted(IMAGE_SUFFIXES))})")
-    return [folder / n for n in names]
+    for entry in entries:
+        problem = _entry_problem(entry)
+        if problem is not None:
+            raise InputError(f"{folder / entry.name}: not a frame image: {problem}")
+    return [folder / e.name for e in entries]
 
 
 def is_image_folder(folder: Path) -> bool:
@@ -80,7 +113,8 @@ def is_image_folder(folder: Path) -> bool:
         return False
     if not any(_is_image_name(e.name) for e in entries):
         return False
-    return not any(is_video(Path(e.path)) for e in entries if not _is_image_name(e.name))
+    others = (e for e in entries if not _is_image_name(e.name) and _entry_problem(e) is None)  # files only
+    return not any(is_video(Path(e.path)) for e in others)
 
 
 _PILLOW_LIMIT_LOCK = threading.Lock()
@@ -208,6 +242,8 @@ def iter_image_folder(
     if len(paths) < min_frames:
         raise InputError(f"{folder}: too short: {len(paths)} frame image(s), at least {min_frames} needed")
     rate = float(fps) if fps else DEFAULT_FPS
+    if not 0 < rate < math.inf:  # NaN, negative or infinite: times.txt and gammas.json would say so for every frame
+        raise OptionError(f"the rate of a folder of frames must be a number of frames per second above 0, got {fps!r}")
     size: tuple[int, ...] | None = None
     for i, p in enumerate(paths):
         check_image_size(p, cap)
@@ -236,13 +272,23 @@ def encode_image(
     fmt = fmt.lower().lstrip(".")
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         raise ValueError(f"expected an HxWx3 uint8 RGB frame, got {rgb.shape} {rgb.dtype}")
+    if rgb.size == 0:  # cvtColor's "(-215:Assertion failed) !_src.empty()" otherwise
+        raise ValueError(f"expected an HxWx3 uint8 RGB frame with at least one pixel, got {rgb.shape}")
+    if fmt in ("jpg", "jpeg") and max(rgb.shape[:2]) > MAX_JPEG_SIDE:
+        # the format's own limit: OpenCV printed "[ERROR:...] imencode(): can't encode data ... Maximum supported
+        # image dimension is 65500 pixels" on stderr, once per writer thread, beside a line that gave no cause
+        raise OptionError(
+            f"JPEG holds at most {MAX_JPEG_SIDE} pixels a side, the frames are {rgb.shape[1]}x{rgb.shape[0]}: "
+            "write them as png"
+        )
     bgr = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)
-    if fmt == "png":
-        ok, buf = cv2.imencode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)])
-    elif fmt in ("jpg", "jpeg"):
-        ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
-    else:
-        raise ValueError(f"unsupported image format {fmt!r} (png or jpg)")
+    with _opencv_quiet():  # a failure is the ValueError below, not OpenCV's own line on stderr
+        if fmt == "png":
+            ok, buf = cv2.imencode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)])
+        elif fmt in ("jpg", "jpeg"):
+            ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+        else:
+            raise ValueError(f"unsupported image format {fmt!r} (png or jpg)")
     if not ok:
         raise ValueError(f"OpenCV could not encode a {rgb.shape[1]}x{rgb.shape[0]} frame as {fmt}")
     return buf.tobytes()

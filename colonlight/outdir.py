@@ -61,13 +61,18 @@ def _cause(exc: OSError) -> str:
 def prepare_output(out_root: Path) -> Path:
     """Create ``out_root`` if needed and check that it is a folder this process can write; OutputError if not."""
     out_root = Path(out_root)
-    if os.path.lexists(out_root) and not out_root.exists():
-        raise OutputError(f"{out_root}: the output path is a dangling symbolic link (or a link loop)")
-    if out_root.exists() and not out_root.is_dir():
-        raise OutputError(f"{out_root}: the output path is a file, not a folder")
+    try:  # Path.exists raises what is not ENOENT-like: a name past NAME_MAX (ENAMETOOLONG) was a traceback
+        if os.path.lexists(out_root) and not out_root.exists():
+            raise OutputError(f"{out_root}: the output path is a dangling symbolic link (or a link loop)")
+        if out_root.exists() and not out_root.is_dir():
+            raise OutputError(f"{out_root}: the output path is a file, not a folder")
+    except OSError as exc:
+        raise OutputError(f"{out_root}: cannot use the output path: {_cause(exc)}") from None
     try:
         out_root.mkdir(parents=True, exist_ok=True)
     except FileExistsError:
+        if not os.path.lexists(out_root):  # a parent that is a dangling link: mkdir of it found the link there
+            raise OutputError(f"{out_root}: a parent of the output folder is a dangling symbolic link") from None
         raise OutputError(f"{out_root}: the output path is a file, not a folder") from None
     except NotADirectoryError:
         raise OutputError(f"{out_root}: a parent of the output folder is a file") from None

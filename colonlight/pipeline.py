@@ -50,7 +50,7 @@ from .limits import (
     max_gap_frames_setting,
     max_pixels_setting,
 )
-from .methods.base import FrameResult, Method
+from .methods.base import FrameResult, Method, integer_option, number_option
 from .provenance import library_versions
 from .slam_layout import CAMERA_FILES, TIMES_FILE, TUM_RGB_FILE, camera_setting, clip_camera, write_slam_layout
 from .sources import clip_frames
@@ -120,19 +120,36 @@ class ClipOptions:
     content: str = DEFAULT_CONTENT  # auto: the method sees the field of view less fixed text (colonlight.content)
 
     def __post_init__(self) -> None:
+        # Each value's type is checked with its range (methods.base's helpers): "18" or None compared with a
+        # number was a TypeError of "<=", a NaN max_pixels a ValueError of int() once the clip ran, and a NaN,
+        # negative or huge folder_fps wrote NaN, negative or all-zero times into times.txt and gammas.json.
         object.__setattr__(self, "content", parse_content_mode(self.content))
         if self.format not in ("png", "jpg"):
             raise OptionError(f"format must be png or jpg, got {self.format!r}")
-        if not MIN_JPEG_QUALITY <= self.quality <= MAX_JPEG_QUALITY:
+        quality = integer_option("quality", self.quality, f"within {MIN_JPEG_QUALITY}..{MAX_JPEG_QUALITY}")
+        if not MIN_JPEG_QUALITY <= quality <= MAX_JPEG_QUALITY:
             raise OptionError(f"quality must be within {MIN_JPEG_QUALITY}..{MAX_JPEG_QUALITY}, got {self.quality}")
-        if self.fps is not None and not is_usable_fps(self.fps):
-            raise OptionError(f"fps must be 0 or within 1/1001..{MAX_FPS:g}, got {self.fps:g}")
-        if self.max_pixels < 1:
+        rates = f"0 or within 1/1001..{MAX_FPS:g}"
+        if self.fps is not None and not is_usable_fps(number_option("fps", self.fps, rates, text=False)):
+            raise OptionError(f"fps must be {rates}, got {self.fps!r}")
+        folder_fps = number_option("folder_fps", self.folder_fps, f"within 1/1001..{MAX_FPS:g}", text=False)
+        if folder_fps == 0 or not is_usable_fps(folder_fps):
+            raise OptionError(f"folder_fps must be within 1/1001..{MAX_FPS:g}, got {self.folder_fps!r}")
+        max_pixels = integer_option("max_pixels", self.max_pixels, "a whole number >= 1")
+        if max_pixels < 1:
             raise OptionError(f"max_pixels must be >= 1, got {self.max_pixels}")
-        if self.max_gap_frames < 1:
+        max_gap_frames = integer_option("max_gap_frames", self.max_gap_frames, "a whole number >= 1")
+        if max_gap_frames < 1:
             raise OptionError(f"max_gap_frames must be >= 1, got {self.max_gap_frames}")
         if not (self.frames or self.video):
             raise OptionError("nothing to write: enable frames or video")
+        # numpy numbers as Python's: the manifest and gammas.json are JSON ("Object of type float32 is not JSON
+        # serializable" ended a batch, and an np.float32 fps failed the clip in Fraction())
+        fps = self.fps.item() if isinstance(self.fps, np.generic) else self.fps
+        for name, value in (("fps", fps), ("folder_fps", folder_fps), ("quality", quality)):
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "max_pixels", max_pixels)
+        object.__setattr__(self, "max_gap_frames", max_gap_frames)
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .atomic import write_bytes_atomic
+from .atomic import read_regular_file, write_bytes_atomic
 from .errors import InputError
 
 TIMES_FILE = "times.txt"
@@ -207,7 +207,8 @@ def read_camera(path: Path) -> CameraFile:
     """Read and check the camera file at ``path`` (``InputError`` naming it if unreadable or malformed)."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_regular_file(path).decode("utf-8")  # a FIFO is refused, not waited on
+        text = text.replace("\r\n", "\n").replace("\r", "\n")  # the newlines read_text gave (universal)
     except (OSError, UnicodeDecodeError) as exc:
         reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
         raise InputError(f"{path}: cannot read the camera file ({reason})") from None

@@ -38,6 +38,8 @@ def enhance_frames(
     """
     if isinstance(method, str):
         method = create_method(method, **options)
+    elif not callable(getattr(method, "stream", None)):  # None or 5 failed later as "has no attribute 'stream'"
+        raise TypeError(f"method must be a Method or a method's name, got {method!r}")
     elif options:
         raise TypeError("options go with a method's name; a built Method already has its own")
     stream = content_stream(method, content)

@@ -5,6 +5,8 @@ Every setting has a default that works on a laptop; ``create_app(Settings(...))`
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 
 from pydantic import Field, SecretStr, ValidationInfo, field_validator
@@ -145,6 +147,29 @@ class Settings(BaseSettings):
     @classmethod
     def _empty_is_none(cls, value: object) -> object:
         return None if value == "" else value
+
+    @field_validator("data_dir")
+    @classmethod
+    def _usable_data_dir(cls, value: Path) -> Path:
+        """A data folder that can never be one is refused at start in one line (nothing is created here): a file
+        or a path under one was a NotADirectoryError traceback, a name past NAME_MAX an OSError one, a link loop
+        pathlib's RuntimeError ("Symlink loop from ..."), each as uvicorn's "Application startup failed"."""
+        try:
+            path = value.resolve()
+        except RuntimeError:  # Python < 3.13 on a link loop
+            raise ValueError(f"{value}: a symbolic link loop") from None
+        for place in (path, *path.parents):
+            try:
+                st = os.stat(place)
+            except (FileNotFoundError, NotADirectoryError):
+                continue  # created at start, or a parent is a file (found next)
+            except OSError as exc:  # ENAMETOOLONG, ELOOP, EACCES
+                raise ValueError(f"{value}: cannot be the data folder: {exc.strerror or exc}") from None
+            if not stat.S_ISDIR(st.st_mode):
+                where = "it is" if place == path else f"{place} is"
+                raise ValueError(f"{value}: cannot be the data folder: {where} a file, not a folder")
+            break
+        return value
 
     @field_validator("model_size", "runtime")
     @classmethod

@@ -98,8 +98,11 @@ def prepare_output_dir(out_dir: Path, overwrite: bool) -> None:
         what = "is" if existing == out_dir else f"lies under {existing}, which is"
         raise InputError(f"{out_dir}: {what} a file, not a folder (--output names a folder)")
     frames = out_dir / FRAMES_DIR
-    old = [p for p in (out_dir / LOG_FILE, out_dir / SUMMARY_FILE) if p.exists()]
-    old_frames = [p for p in frames.iterdir() if p.name.partition(".")[0].isdigit()] if frames.is_dir() else []
+    try:
+        old = [p for p in (out_dir / LOG_FILE, out_dir / SUMMARY_FILE) if p.exists()]
+        old_frames = [p for p in frames.iterdir() if p.name.partition(".")[0].isdigit()] if frames.is_dir() else []
+    except OSError as exc:  # a name past NAME_MAX (ENAMETOOLONG): Path.exists raises it, a traceback before
+        raise InputError(f"{out_dir}: cannot use the output folder: {exc.strerror or exc}") from None
     if not (old or old_frames):
         return
     if not overwrite:

@@ -78,7 +78,11 @@ def parse_source(text: str, input_format: str | None = None, options: Mapping[st
         probe_device(Path(text))
         return SourceSpec(text, "device", text, input_format or "v4l2", opts)
     path = Path(text)
-    if not path.exists():
+    try:
+        exists = path.exists()
+    except OSError as exc:  # a name past NAME_MAX (ENAMETOOLONG): Path.exists raises it, a traceback before
+        raise InputError(f"{text}: cannot open: {exc.strerror or exc}") from None
+    if not exists:
         if os.path.lexists(path):
             raise InputError(f"{text}: a dangling symbolic link (or a link loop)")
         raise InputError(f"{text}: no such file (a stream URL needs a scheme such as udp:// or http://)")

@@ -7,13 +7,12 @@ pixel.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 
 from ..errors import OptionError
-from .base import FrameResult, Method, MethodStream, check_frame
+from .base import FrameResult, Method, MethodStream, check_frame, number_option
 from .histogram import scale_value, value_channel
 
 _LEVELS = np.arange(256, dtype=np.float64)
@@ -72,8 +71,8 @@ class AgcwdMethod(Method):
     name = "agcwd"
 
     def __init__(self, alpha: float = 0.5) -> None:
-        alpha = float(alpha)
-        if not math.isfinite(alpha) or alpha <= 0:
+        alpha = number_option("alpha", alpha, "finite and > 0")
+        if alpha <= 0:
             raise OptionError(f"alpha must be finite and > 0, got {alpha!r}")
         self.alpha = alpha
 

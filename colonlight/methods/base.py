@@ -9,13 +9,15 @@ always come out in input order, one per input frame.
 
 from __future__ import annotations
 
+import math
+import numbers
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
 
-from ..errors import FrameShapeError
+from ..errors import FrameShapeError, OptionError
 
 
 @dataclass(frozen=True)
@@ -72,3 +74,35 @@ def check_frame(frame: np.ndarray) -> None:
         raise FrameShapeError(f"expected an (H, W, 3) uint8 RGB frame, got shape {shape} dtype {dtype}")
     if frame.size == 0:  # would fail deep inside OpenCV or torch, each in its own way
         raise FrameShapeError(f"empty frame of shape {frame.shape}: a frame needs at least one pixel")
+
+
+def number_option(name: str, value: object, accepted: str, *, text: bool = True) -> float:
+    """A method constructor's numeric option as a finite float (from an int, a float, a numpy number or, with
+    ``text``, its text), for the caller's own range check; else :class:`OptionError` ``"{name} must be {accepted},
+    got {value!r}"``.
+
+    ``float()`` of the Python API's values raised TypeError (None), OverflowError (an int past a float's range)
+    or took ``True`` as 1; a string compared with a float raised TypeError: none of them named the option."""
+    if isinstance(value, bool) or not isinstance(value, (numbers.Real, str) if text else numbers.Real):
+        raise OptionError(f"{name} must be {accepted}, got {value!r}")
+    try:
+        number = float(value)
+    except (ValueError, OverflowError):
+        raise OptionError(f"{name} must be {accepted}, got {value!r}") from None
+    if not math.isfinite(number):
+        raise OptionError(f"{name} must be {accepted}, got {value!r}")
+    return number
+
+
+def integer_option(name: str, value: object, accepted: str) -> int:
+    """A method constructor's whole-number option (an int, a numpy integer or a float of integral value), for the
+    caller's own range check; else :class:`OptionError` as :func:`number_option` (``int()`` of NaN or an
+    infinity raised ValueError or OverflowError; ``1.5`` was truncated silently)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise OptionError(f"{name} must be {accepted}, got {value!r}")
+    if isinstance(value, numbers.Integral):
+        return int(value)
+    number = float(value)
+    if not number.is_integer():  # also NaN and the infinities
+        raise OptionError(f"{name} must be {accepted}, got {value!r}")
+    return int(number)

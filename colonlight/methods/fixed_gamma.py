@@ -6,14 +6,13 @@ well-chosen global exponent already buys.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 
 from ..curves import apply_lut, gamma_lut
 from ..errors import OptionError
-from .base import FrameResult, Method, MethodStream, check_frame
+from .base import FrameResult, Method, MethodStream, check_frame, number_option
 
 
 class _FixedGammaStream(MethodStream):
@@ -37,8 +36,8 @@ class FixedGammaMethod(Method):
     name = "gamma"
 
     def __init__(self, gamma: float = 0.7) -> None:
-        gamma = float(gamma)
-        if not math.isfinite(gamma) or gamma <= 0:
+        gamma = number_option("gamma", gamma, "finite and > 0")
+        if gamma <= 0:
             raise OptionError(f"gamma must be finite and > 0, got {gamma!r}")
         self.gamma = gamma
         self._lut = gamma_lut(gamma)

@@ -7,16 +7,18 @@ channel.
 
 from __future__ import annotations
 
-import math
+from collections.abc import Iterable
 from typing import Any
 
 import cv2
 import numpy as np
 
 from ..errors import OptionError
-from .base import FrameResult, Method, MethodStream, check_frame
+from .base import FrameResult, Method, MethodStream, check_frame, integer_option, number_option
 
 _CLAHE_SPACES = ("lab", "hsv")
+#: The most CLAHE tiles a side (8 by default): OpenCV holds a table of 256 bytes per tile (16 MB at this bound).
+MAX_TILES = 256
 
 
 def equalize_luma(frame: np.ndarray) -> np.ndarray:
@@ -117,12 +119,19 @@ class ClaheMethod(Method):
     name = "clahe"
 
     def __init__(self, clip_limit: float = 2.0, tile_grid: tuple[int, int] = (8, 8), space: str = "lab") -> None:
-        clip_limit = float(clip_limit)
-        if not math.isfinite(clip_limit) or clip_limit < 0:
+        clip_limit = number_option("clip_limit", clip_limit, "finite and >= 0")
+        if clip_limit < 0:
             raise OptionError(f"clip_limit must be finite and >= 0, got {clip_limit!r}")
-        grid = tuple(int(t) for t in tile_grid)
-        if len(grid) != 2 or min(grid) < 1:
-            raise OptionError(f"tile_grid must be two positive integers, got {tile_grid!r}")
+        # at most MAX_TILES a side: OpenCV keeps a 256-entry table per tile, so (10000, 10000) asked it for 25 GB
+        # and failed deep inside it (cv2.error "Insufficient memory"); an int raised "not iterable"
+        accepted = f"two integers 1..{MAX_TILES}"
+        tiles = list(tile_grid) if isinstance(tile_grid, Iterable) and not isinstance(tile_grid, (str, bytes)) else []
+        try:
+            grid = tuple(integer_option("tile_grid", t, accepted) for t in tiles) if len(tiles) == 2 else ()
+        except OptionError:
+            grid = ()  # refused below, naming the whole grid
+        if len(grid) != 2 or not all(1 <= t <= MAX_TILES for t in grid):
+            raise OptionError(f"tile_grid must be {accepted}, got {tile_grid!r}")
         if space not in _CLAHE_SPACES:
             raise OptionError(f"space must be one of {', '.join(_CLAHE_SPACES)}, got {space!r}")
         self.clip_limit = clip_limit

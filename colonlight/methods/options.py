@@ -116,16 +116,21 @@ class MethodOption:
             raise self._refused(value)
         if text in self.words:
             return text
-        if not text.isdigit() or not self._within(int(text)):
+        # isdecimal, not isdigit: a superscript "²" is a digit int() refuses (a ValueError traceback in the CLI, a
+        # 422 quoting int()); and no more digits than the bound has, past which int() refuses (4300) or is slow
+        significant = text.lstrip("0") or "0"
+        if not text.isdecimal() or len(significant) > len(str(int(self.maximum or 0))):
             raise self._refused(value)
-        return str(int(text))
+        if not self._within(int(significant)):
+            raise self._refused(value)
+        return str(int(significant))
 
     def _parse_number(self, value: object) -> float:
         if isinstance(value, bool) or not isinstance(value, (str, int, float)):
             raise self._refused(value)
         try:
             number = float(value)
-        except ValueError:
+        except (ValueError, OverflowError):  # OverflowError: an int past a float's range (a JSON 1 and 400 zeros)
             raise self._refused(value) from None
         if not math.isfinite(number) or not self._within(number):
             raise self._refused(value)
@@ -137,7 +142,10 @@ class MethodOption:
         return self.maximum is None or number <= self.maximum
 
     def _refused(self, value: object) -> MethodOptionError:
-        return MethodOptionError(self.name, f"{self.name} must be {self.range_text()}, got {value!r}")
+        shown = repr(value)
+        if len(shown) > 60:  # a form field of 8 KB, a JSON number of 400 digits: echoed whole, a line of pages
+            shown = f"{shown[:40]}... ({len(str(value))} characters)"
+        return MethodOptionError(self.name, f"{self.name} must be {self.range_text()}, got {shown}")
 
     def not_for(self, methods: Sequence[str]) -> MethodOptionError:
         """The error for this option given to ``methods``, none of which takes it."""

@@ -28,7 +28,7 @@ from ..limits import DEFAULT_MODEL_SIZE, MAX_MODEL_SIZE, MIN_MODEL_SIZE
 from ..model import State
 from ..scene_cut import SceneCutDetector, default_threshold
 from ..tone_match import ToneMatcher, default_weight
-from .base import FrameResult, Method, MethodStream, check_frame
+from .base import FrameResult, Method, MethodStream, check_frame, integer_option, number_option
 from .rnn_onnx import make_step
 
 #: The applied gamma is kept inside this range; a value outside it is clamped and the clamp recorded.
@@ -262,20 +262,23 @@ class RecurrentGammaMethod(Method):
         self.model_size = parse_model_size(model_size, trained_at=self.weights.input_size)
         if seeds is None:  # what the weights were trained with (the card), else the release's 2
             seeds = self.weights.seed_frames if self.weights.seed_frames is not None else SEED_FRAMES
+        seeds = integer_option("seeds", seeds, "a whole number >= 0")  # NaN and 1.5 were taken as they were
         if seeds < 0:
-            raise OptionError(f"seeds must be >= 0, got {seeds}")
+            raise OptionError(f"seeds must be a whole number >= 0, got {seeds}")
         self.seeds = seeds
         self.runtime = runtime
         if tone_match is None:
             tone_match = default_weight(self.weights.head)
+        tone_match = number_option("tone_match", tone_match, "within 0..1")  # "0.5" was a TypeError of <=
         if not 0.0 <= tone_match <= 1.0:
             raise OptionError(f"tone_match must be within 0..1, got {tone_match}")
-        self.tone_match = float(tone_match)
+        self.tone_match = tone_match
         if scene_cut is None:
             scene_cut = default_threshold(self.weights.head)
+        scene_cut = number_option("scene_cut", scene_cut, "within 0..1")
         if not 0.0 <= scene_cut <= 1.0:
             raise OptionError(f"scene_cut must be within 0..1, got {scene_cut}")
-        self.scene_cut = float(scene_cut)
+        self.scene_cut = scene_cut
         self.step = make_step(self.weights, self.model_size, self.device, runtime)  # net.step or ONNX Runtime's
 
     def stream(self) -> RecurrentGammaStream:
@@ -313,10 +316,14 @@ def parse_model_size(value: int | str | None, trained_at: int | None = None) -> 
         return None
     if word == "auto":
         return trained_at or DEFAULT_MODEL_SIZE
-    try:
-        size = int(value)
-    except (TypeError, ValueError):
-        raise OptionError(f"model size must be a positive integer, 'full' or 'auto', got {value!r}") from None
+    accepted = "a positive integer, 'full' or 'auto'"
+    if not isinstance(value, str):  # True was size 1 and 64.7 size 64, silently
+        size = integer_option("model size", value, accepted)
+    else:
+        try:
+            size = int(value)
+        except ValueError:
+            raise OptionError(f"model size must be {accepted}, got {value!r}") from None
     if not MIN_MODEL_SIZE <= size <= MAX_MODEL_SIZE:
         raise OptionError(f"model size must be {MIN_MODEL_SIZE}..{MAX_MODEL_SIZE} pixels, got {size}")
     return size

@@ -28,7 +28,7 @@ import torch.nn.functional as F
 from ..checkpoint import WEIGHTS_DIR
 from ..device import resolve_device
 from ..errors import CheckpointError, OptionError
-from .base import FrameResult, Method, MethodStream, check_frame
+from .base import FrameResult, Method, MethodStream, check_frame, integer_option
 from .zerodce_loss import (
     LossWeights,
     colour_constancy_loss,
@@ -132,9 +132,11 @@ class ZeroDceMethod(_ZeroDceBase):
     ) -> None:
         if iterations not in range(1, DceNet.n_maps + 1):
             raise OptionError(f"iterations must be 1..{DceNet.n_maps} for Zero-DCE, got {iterations!r}")
-        if max_side is not None and (int(max_side) != max_side or max_side < 0):
-            raise OptionError(f"max_side must be a positive integer or None, got {max_side!r}")
-        self.max_side = int(max_side) if max_side else None
+        accepted = "a positive integer or None"
+        side = None if max_side is None else integer_option("max_side", max_side, accepted)  # int(nan) raised
+        if side is not None and side < 0:
+            raise OptionError(f"max_side must be {accepted}, got {max_side!r}")
+        self.max_side = side or None
         super().__init__(weights, device, iterations)
 
     def parameters(self) -> dict[str, Any]:
@@ -172,9 +174,9 @@ class ZeroDcePlusPlusMethod(_ZeroDceBase):
     def __init__(
         self, weights: str | Path | None = None, device: str = "cpu", scale: int = 12, iterations: int = 8
     ) -> None:
-        if isinstance(scale, bool) or int(scale) != scale or int(scale) < 1:
+        self.scale = integer_option("scale", scale, "a positive integer")  # int(nan) raised ValueError
+        if self.scale < 1:
             raise OptionError(f"scale must be a positive integer, got {scale!r}")
-        self.scale = int(scale)
         super().__init__(weights, device, iterations)
 
     def parameters(self) -> dict[str, Any]:

@@ -66,3 +66,11 @@ def test_export_to_a_folder_that_is_a_file_names_the_output(tmp_path: Path) -> N
     assert "Traceback" not in err and err.count("\n") == 1, err
     assert err.startswith(f"error: {out}: cannot write ("), err
     assert blocker.read_text() == "the user's own\n"
+
+
+def test_train_into_a_name_too_long_is_a_usage_error(tmp_path: Path) -> None:
+    """``train -o`` past NAME_MAX: ``Path.exists`` raised ENAMETOOLONG from the output check, a traceback."""
+    code, err = colonlight("train", tmp_path / "clip.mp4", "-o", tmp_path / ("x" * 300), "--epochs", "1")
+    assert code == USAGE
+    assert "Traceback" not in err and "cannot be used: File name too long" in err.replace("\n", ""), err
+    assert list(tmp_path.iterdir()) == []
