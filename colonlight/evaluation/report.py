@@ -27,7 +27,7 @@ from ..limits import DEFAULT_FPS
 from ..provenance import distribution_versions, library_versions
 from .breakdown import CAUSES
 from .records import EvaluationResult
-from .summary import failure_breakdown, summarize
+from .summary import MIN_GAP, failure_breakdown, summarize
 from .tracker import BRIGHTNESS_MODES
 
 RESULTS_FILE, TABLE_MD, TABLE_CSV, CLIPS_CSV, REPORT_HTML = (
@@ -114,7 +114,7 @@ DEFINITIONS: list[tuple[str, str]] = [
             "(method - input) / (oracle-curve - input) for success rate and for tracked fraction, per "
             "brightness setting, over the clips the method, the input and oracle-curve all tracked: 0 = no "
             "better than the input, 100% = as good as the best global tone curve per frame; n/a when the "
-            "oracle is no better than the input."
+            f"oracle leads the input by less than {MIN_GAP:g} (a ratio of two tiny differences means nothing)."
         ),
     ),
     (
