@@ -205,12 +205,18 @@ def load_weights(path: Path | str | None = None) -> LoadedWeights:
     """
     path = Path(path) if path is not None else DEFAULT_WEIGHTS
     try:
-        is_file, is_dir = path.is_file(), path.is_dir()
+        is_file, is_dir, exists = path.is_file(), path.is_dir(), path.exists()
     except OSError as exc:  # a name past NAME_MAX (ENAMETOOLONG): is_file raises it, a traceback before
         raise CheckpointError(f"{path}: cannot read the checkpoint file ({exc.strerror or exc})") from None
     if not is_file:
         hint = " (the default model is missing from this installation)" if path == DEFAULT_WEIGHTS else ""
-        what = "a folder, not a checkpoint file" if is_dir else "no such checkpoint file"
+        what = (
+            "a folder, not a checkpoint file"
+            if is_dir
+            else "not a regular file (a FIFO, socket or device)"
+            if exists
+            else "no such checkpoint file"
+        )
         raise CheckpointError(f"{path}: {what}{hint}")
     digest = sha256_file(path)
     card: dict[str, Any] = {}

@@ -7,6 +7,7 @@ frame is applied to the full-resolution frame.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import cv2
@@ -20,14 +21,25 @@ IDENTITY_LUT = np.arange(256, dtype=np.uint8)
 IDENTITY_LUT.flags.writeable = False
 
 
+def _positive(name: str, value: float) -> float:
+    """``value`` as a finite positive float, else :class:`OptionError` naming it (an int past a float's range or
+    a value of no number type failed in numpy's ``isfinite`` with a TypeError that named nothing)."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError, OverflowError):
+        number = math.nan
+    if not math.isfinite(number) or number <= 0:
+        raise OptionError(f"{name} must be finite and > 0, got {value!r}")
+    return number
+
+
 def gamma_lut(gamma: float) -> np.ndarray:
     """The table of ``round(255 * (v / 255) ** gamma)`` for v in 0..255, as uint8.
 
     ``gamma`` must be finite and positive (``gamma < 1`` brightens). Computed in float64 and rounded with
     ``numpy.rint`` (round half to even, like Python's ``round``), so it is bit-identical to that formula.
     """
-    if not np.isfinite(gamma) or gamma <= 0:
-        raise OptionError(f"gamma must be finite and > 0, got {gamma!r}")
+    gamma = _positive("gamma", gamma)
     return np.rint(255.0 * _LEVELS**gamma).astype(np.uint8)
 
 
@@ -36,12 +48,10 @@ def gain_gamma_lut(gain: float, gamma: float) -> np.ndarray:
 
     ``gain == 1`` gives exactly :func:`gamma_lut`. Both must be finite and positive.
     """
-    if not np.isfinite(gain) or gain <= 0:
-        raise OptionError(f"gain must be finite and > 0, got {gain!r}")
+    gain = _positive("gain", gain)
     if gain == 1.0:
         return gamma_lut(gamma)
-    if not np.isfinite(gamma) or gamma <= 0:
-        raise OptionError(f"gamma must be finite and > 0, got {gamma!r}")
+    gamma = _positive("gamma", gamma)
     return np.rint(255.0 * np.minimum(1.0, gain * _LEVELS**gamma)).astype(np.uint8)
 
 

@@ -275,3 +275,27 @@ def test_paths_with_a_name_too_long_are_one_line(tmp_path: Path) -> None:
     with pytest.raises(OutputError, match="dangling/out: a parent of the output folder is a dangling symbolic link$"):
         prepare_output(tmp_path / "dangling" / "out")
     assert list(tmp_path.iterdir()) == [tmp_path / "dangling"]
+
+
+@pytest.mark.parametrize("value", [10**400, None, "x", float("nan"), -1.0, 0])
+def test_a_lookup_table_of_no_usable_exponent_names_it(value: object) -> None:
+    """``gamma_lut(10**400)`` or ``(None)`` failed in numpy's ``isfinite`` with a TypeError naming nothing."""
+    from colonlight.curves import gain_gamma_lut, gamma_lut
+    from colonlight.errors import OptionError
+
+    with pytest.raises(OptionError, match="^gamma must be finite and > 0, got "):
+        gamma_lut(value)  # type: ignore[arg-type]
+    with pytest.raises(OptionError, match="^gain must be finite and > 0, got "):
+        gain_gamma_lut(value, 1.0)  # type: ignore[arg-type]
+    assert np.array_equal(gamma_lut(np.float32(0.5)), gamma_lut(0.5))  # numpy numbers: the same table
+
+
+def test_weights_that_are_a_fifo_are_named_so(tmp_path: Path) -> None:
+    """A FIFO given as the weights read "no such checkpoint file", which sent a user looking for a missing file."""
+    from colonlight.checkpoint import load_weights
+    from colonlight.errors import CheckpointError
+
+    fifo = tmp_path / "w.safetensors"
+    os.mkfifo(fifo)
+    with pytest.raises(CheckpointError, match=r"w\.safetensors: not a regular file \(a FIFO, socket or device\)$"):
+        load_weights(fifo)
