@@ -85,7 +85,7 @@ class _ClipOptions(BaseModel):
         # check_fps refuses both too): refused here, not accepted and then failed as a job
         if value is not None and not is_usable_fps(value):
             raise ValueError(f"must be 0 (every frame) or a rate within 1/1001..{MAX_FPS:g}, got {value!r}")
-        return value
+        return 0.0 if value == 0 else value  # "-0" is every frame too, and is recorded as 0.0, not -0.0
 
     @field_validator("method")
     @classmethod

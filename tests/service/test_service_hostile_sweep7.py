@@ -108,3 +108,12 @@ def test_a_data_folder_that_cannot_be_one_stops_the_server_in_one_line(tmp_path:
     lines = [line for line in srv.log().splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith(f"error: COLONLIGHT_DATA_DIR: Value error, {data}: "), lines
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "loop", "server.log"]
+
+
+def test_a_negative_zero_rate_is_recorded_as_every_frame() -> None:
+    """``fps=-0`` is a usable rate (every frame) and was recorded as ``-0.0`` in the job's options."""
+    from colonlight_service.request_options import JobOptions
+
+    options = JobOptions.model_validate({"fps": "-0"})
+    assert options.fps == 0.0 and str(options.fps) == "0.0"
+    assert JobOptions.model_validate({"fps": 18}).fps == 18
