@@ -120,7 +120,10 @@ def read_regular_file(path: Path) -> bytes:
     opened non-blocking and its type checked on the open file before a byte is read."""
     fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
+        mode = os.fstat(fd).st_mode
+        if stat.S_ISDIR(mode):  # what reading a folder has always said
+            raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
+        if not stat.S_ISREG(mode):
             raise OSError(errno.EINVAL, "not a regular file (a FIFO, socket or device)", str(path))
         os.set_blocking(fd, True)
         with open(fd, "rb", closefd=False) as f:

@@ -299,3 +299,11 @@ def test_weights_that_are_a_fifo_are_named_so(tmp_path: Path) -> None:
     os.mkfifo(fifo)
     with pytest.raises(CheckpointError, match=r"w\.safetensors: not a regular file \(a FIFO, socket or device\)$"):
         load_weights(fifo)
+
+
+def test_reading_a_folder_as_a_record_says_it_is_a_folder(tmp_path: Path) -> None:
+    """``read_regular_file`` refuses what is no regular file; a folder keeps the cause reading one always gave."""
+    from colonlight.atomic import read_json
+
+    with pytest.raises(IsADirectoryError, match="Is a directory"):
+        read_json(tmp_path)
