@@ -218,7 +218,10 @@ def load_weights(path: Path | str | None = None) -> LoadedWeights:
             else "no such checkpoint file"
         )
         raise CheckpointError(f"{path}: {what}{hint}")
-    digest = sha256_file(path)
+    try:
+        digest = sha256_file(path)
+    except OSError as exc:  # permission denied, an I/O error: a traceback in enhance, "cannot write" in export
+        raise CheckpointError(f"{path}: cannot read the checkpoint file ({exc.strerror or exc})") from None
     card: dict[str, Any] = {}
     if path.suffix == ".safetensors":
         try:

@@ -307,3 +307,15 @@ def test_reading_a_folder_as_a_record_says_it_is_a_folder(tmp_path: Path) -> Non
 
     with pytest.raises(IsADirectoryError, match="Is a directory"):
         read_json(tmp_path)
+
+
+@pytest.mark.skipif(not Path("/proc/self/mem").is_file(), reason="needs Linux's /proc/self/mem")
+def test_weights_whose_read_fails_are_a_checkpoint_error() -> None:
+    """A weights file whose read fails (permission denied, an I/O error) was a raw OSError from hashing it: a
+    traceback in ``enhance`` and "cannot write" in ``export``, which blamed the output. ``/proc/self/mem`` is a
+    regular file whose read at offset 0 fails with EIO, whoever runs the test (root reads any mode)."""
+    from colonlight.checkpoint import load_weights
+    from colonlight.errors import CheckpointError
+
+    with pytest.raises(CheckpointError, match=r"^/proc/self/mem: cannot read the checkpoint file \(.+\)$"):
+        load_weights("/proc/self/mem")
