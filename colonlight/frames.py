@@ -282,13 +282,14 @@ def encode_image(
             "write them as png"
         )
     bgr = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)
-    with _opencv_quiet():  # a failure is the ValueError below, not OpenCV's own line on stderr
-        if fmt == "png":
-            ok, buf = cv2.imencode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)])
-        elif fmt in ("jpg", "jpeg"):
-            ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
-        else:
-            raise ValueError(f"unsupported image format {fmt!r} (png or jpg)")
+    # no _opencv_quiet here: its process-wide lock would serialise the writer threads, every frame, for failures
+    # the checks above already turn into our own line before OpenCV sees them
+    if fmt == "png":
+        ok, buf = cv2.imencode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)])
+    elif fmt in ("jpg", "jpeg"):
+        ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    else:
+        raise ValueError(f"unsupported image format {fmt!r} (png or jpg)")
     if not ok:
         raise ValueError(f"OpenCV could not encode a {rgb.shape[1]}x{rgb.shape[0]} frame as {fmt}")
     return buf.tobytes()
