@@ -113,6 +113,10 @@ def parse_json(text: str | bytes) -> Any:
         raise ValueError("JSON nested too deep to decode") from None
 
 
+#: Why a path that exists is not read as a file (the one wording, wherever colonlight refuses one).
+NOT_REGULAR_FILE = "not a regular file (a FIFO, socket or device)"
+
+
 def read_regular_file(path: Path) -> bytes:
     """The bytes of the regular file at ``path`` (links followed); ``OSError`` if it cannot be read, or if it is a
     FIFO, socket or device. Opened plainly, a FIFO with no writer blocks its reader forever: a ``manifest.json``
@@ -124,7 +128,7 @@ def read_regular_file(path: Path) -> bytes:
         if stat.S_ISDIR(mode):  # what reading a folder has always said
             raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
         if not stat.S_ISREG(mode):
-            raise OSError(errno.EINVAL, "not a regular file (a FIFO, socket or device)", str(path))
+            raise OSError(errno.EINVAL, NOT_REGULAR_FILE, str(path))
         os.set_blocking(fd, True)
         with open(fd, "rb", closefd=False) as f:
             return f.read()

@@ -21,7 +21,7 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from .atomic import atomic_path, read_json, write_json_atomic
+from .atomic import NOT_REGULAR_FILE, atomic_path, read_json, write_json_atomic
 from .errors import CheckpointError
 from .limits import MAX_MODEL_SIZE, MIN_MODEL_SIZE
 from .model import HEAD_OUTPUTS, INPUT_CHANNELS, GammaNet
@@ -205,19 +205,13 @@ def load_weights(path: Path | str | None = None) -> LoadedWeights:
     """
     path = Path(path) if path is not None else DEFAULT_WEIGHTS
     try:
-        is_file, is_dir, exists = path.is_file(), path.is_dir(), path.exists()
+        if not path.is_file():
+            hint = " (the default model is missing from this installation)" if path == DEFAULT_WEIGHTS else ""
+            if path.is_dir():
+                raise CheckpointError(f"{path}: a folder, not a checkpoint file{hint}")
+            raise CheckpointError(f"{path}: {NOT_REGULAR_FILE if path.exists() else 'no such checkpoint file'}{hint}")
     except OSError as exc:  # a name past NAME_MAX (ENAMETOOLONG): is_file raises it, a traceback before
         raise CheckpointError(f"{path}: cannot read the checkpoint file ({exc.strerror or exc})") from None
-    if not is_file:
-        hint = " (the default model is missing from this installation)" if path == DEFAULT_WEIGHTS else ""
-        what = (
-            "a folder, not a checkpoint file"
-            if is_dir
-            else "not a regular file (a FIFO, socket or device)"
-            if exists
-            else "no such checkpoint file"
-        )
-        raise CheckpointError(f"{path}: {what}{hint}")
     try:
         digest = sha256_file(path)
     except OSError as exc:  # permission denied, an I/O error: a traceback in enhance, "cannot write" in export

@@ -24,7 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .atomic import write_bytes_atomic
+from .atomic import NOT_REGULAR_FILE, write_bytes_atomic
 from .errors import FrameTooLargeError, InputError, OptionError
 from .limits import DEFAULT_FPS, DEFAULT_JPEG_QUALITY, max_pixels_setting
 from .video import DecodedFrame, is_video
@@ -85,7 +85,7 @@ def _entry_problem(entry: os.DirEntry[str]) -> str | None:
         if exc.errno == errno.ENOENT:
             return "not found (a dangling link, or moved or deleted?)"
         return exc.strerror or str(exc)
-    return "not a regular file (a FIFO, socket or device)"
+    return NOT_REGULAR_FILE
 
 
 def list_image_frames(folder: Path) -> list[Path]:

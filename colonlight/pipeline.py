@@ -146,10 +146,10 @@ class ClipOptions:
         # numpy numbers as Python's: the manifest and gammas.json are JSON ("Object of type float32 is not JSON
         # serializable" ended a batch, and an np.float32 fps failed the clip in Fraction())
         fps = self.fps.item() if isinstance(self.fps, np.generic) else self.fps
-        for name, value in (("fps", fps), ("folder_fps", folder_fps), ("quality", quality)):
+        checked = {"fps": fps, "folder_fps": folder_fps, "quality": quality, "max_pixels": max_pixels,
+                   "max_gap_frames": max_gap_frames}  # fmt: skip
+        for name, value in checked.items():
             object.__setattr__(self, name, value)
-        object.__setattr__(self, "max_pixels", max_pixels)
-        object.__setattr__(self, "max_gap_frames", max_gap_frames)
 
 
 @dataclass(frozen=True)
