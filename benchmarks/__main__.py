@@ -1,6 +1,6 @@
 """Run the benchmarks (default: all): `python -m benchmarks [input_size] [enhance] [service] [stream] [ws_stream]
 [quality_gate] [objective_landscape] [onnx_step] [model_validation] [model_cost] [video_encoding]
-[blind_renderer]`.
+[blind_renderer] [motion_cue]`.
 
 Options after a name go to that benchmark: `python -m benchmarks quality_gate --json gate.json`.
 """
@@ -24,6 +24,7 @@ BENCHMARKS = {
     "model_cost": "benchmarks.model_cost",
     "video_encoding": "benchmarks.video_encoding",
     "blind_renderer": "benchmarks.blind_renderer_check",
+    "motion_cue": "benchmarks.motion_cue",
 }
 
 

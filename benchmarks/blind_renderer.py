@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -658,11 +659,19 @@ def _job(args: tuple[Path, int, int, int, int, int, bool]) -> str:
 
 
 def render_clips(
-    out: Path, seed: int, clips: int = 12, frames: int = 60, width: int = 320, height: int = 256, workers: int = 2
+    out: Path,
+    seed: int,
+    clips: int = 12,
+    frames: int = 60,
+    width: int = 320,
+    height: int = 256,
+    workers: int = 2,
+    only: Sequence[int] | None = None,
 ) -> list[Path]:
-    """Render clips ``0..clips-1`` of ``seed`` into ``out/clip_NNN`` (every 4th steady), skipping those already
-    complete (``synth.json`` is written last); the clip folders."""
-    jobs = [(out, seed, i, width, height, frames, i % 4 == 3) for i in range(clips)]
+    """Render clips ``0..clips-1`` of ``seed`` (or the indices ``only``) into ``out/clip_NNN`` (every 4th
+    steady: ``is_steady``), skipping those already complete (``synth.json`` is written last); the clip folders."""
+    indices = list(range(clips)) if only is None else list(only)
+    jobs = [(out, seed, i, width, height, frames, is_steady(i)) for i in indices]
     todo = [j for j in jobs if not (out / f"clip_{j[2]:03d}" / "synth.json").is_file()]
     if workers > 1 and len(todo) > 1:
         with ProcessPoolExecutor(workers) as pool:
@@ -670,4 +679,9 @@ def render_clips(
     else:
         for job in todo:
             _job(job)
-    return [out / f"clip_{i:03d}" for i in range(clips)]
+    return [out / f"clip_{i:03d}" for i in indices]
+
+
+def is_steady(index: int) -> bool:
+    """Whether clip ``index`` of a seed is rendered steady (no lighting disturbance): every 4th, from 3."""
+    return index % 4 == 3

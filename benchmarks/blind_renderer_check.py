@@ -32,6 +32,8 @@ from .common import AUTHORS_CKPT, markdown_table
 
 METHODS = "none,he,clahe,deflicker,zerodce,zerodce++,rnn"
 MODES = ("fixed", "affine")
+#: Where the clips and reports are kept between runs (``--workdir``; ``motion_cue`` reads the same clips).
+WORKDIR = Path(tempfile.gettempdir()) / "colonlight-blind-renderer"
 
 
 def _evaluate(clips: Path, out: Path) -> dict[str, Any]:
@@ -75,7 +77,7 @@ def main(argv: list[str] | None = None) -> str:
     parser = argparse.ArgumentParser(prog="python -m benchmarks blind_renderer")
     parser.add_argument("--seeds", default="0,1", help="comma-separated renderer seeds (12 clips each)")
     parser.add_argument("--clips", type=int, default=12)
-    parser.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "colonlight-blind-renderer")
+    parser.add_argument("--workdir", type=Path, default=WORKDIR)
     args = parser.parse_args(argv or [])
     seeds = [int(s) for s in args.seeds.split(",")]
     clips: list[dict[str, Any]] = []
