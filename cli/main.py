@@ -13,7 +13,7 @@ import typer
 
 from colonlight import ColonlightError, __version__
 
-from . import demo, enhance, evaluate, export, info, stream, synth, train
+from . import content, demo, enhance, evaluate, export, info, stream, synth, train
 from .display import FlagsWithoutType, error_line
 from .interrupts import INTERRUPTED
 
@@ -41,7 +41,7 @@ def main(
     """colonlight: consistent lighting for colonoscopy video."""
 
 
-for module in (enhance, stream, demo, synth, train, info, evaluate, export):
+for module in (enhance, stream, demo, synth, train, info, evaluate, export, content):
     module.register(app)
 
 try:  # the service's command, when its module is present

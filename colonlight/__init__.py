@@ -36,6 +36,10 @@ _EXPORTS: dict[str, str] = {
     "DEFAULT_CONTENT": "content",
     "ContentMode": "content",
     "content_stream": "content",
+    "content_mask_format": "content_mask",
+    "find_content_area": "content_mask",
+    "read_content_mask": "content_mask",
+    "write_content_mask": "content_mask",
     "live_content_stream": "content",
     "parse_content_mode": "content",
     "apply_gamma": "curves",
@@ -104,6 +108,7 @@ if TYPE_CHECKING:
     from .checkpoint import DEFAULT_WEIGHTS, LoadedWeights, load_weights, save_weights
     from .cluster import ClusterRunner
     from .content import DEFAULT_CONTENT, ContentMode, content_stream, live_content_stream, parse_content_mode
+    from .content_mask import content_mask_format, find_content_area, read_content_mask, write_content_mask
     from .curves import apply_gamma, apply_lut, gamma_lut
     from .device import resolve_device
     from .discovery import VIDEO_SUFFIXES, PathProblem, discover, discover_clips, synthetic_folder_of
@@ -177,6 +182,7 @@ __all__ = [
     "atomic_path",
     "available_methods",
     "clip_frames",
+    "content_mask_format",
     "content_stream",
     "create_method",
     "default_workers",
@@ -188,6 +194,7 @@ __all__ = [
     "estimate_frames",
     "export_epoch",
     "export_onnx",
+    "find_content_area",
     "gamma_lut",
     "is_available",
     "iter_enhanced",
@@ -205,6 +212,7 @@ __all__ = [
     "prepare_output",
     "probe_video",
     "read_camera",
+    "read_content_mask",
     "read_json",
     "resolve_device",
     "reuse_frame_memory",
@@ -216,5 +224,6 @@ __all__ = [
     "train_zerodce",
     "tune_for_clips",
     "warm_method",
+    "write_content_mask",
     "write_json_atomic",
 ]

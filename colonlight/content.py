@@ -306,13 +306,18 @@ class ContentStream(MethodStream):
         *,
         first_frames: int | None = None,
         resize: Literal["refuse", "redetect"] = "refuse",
+        area: ContentArea | None = None,
     ) -> None:
         """``first_frames``: frames held back for the first decision (default ``detect_frames``). ``resize``: a
         frame of another size is refused (a clip has one size), or starts a new detection (a live source may
-        reconnect at another size; the method's own stream, and its state, go on)."""
+        reconnect at another size; the method's own stream, and its state, go on). ``area``: use this area for
+        every frame and detect nothing (a scope's known mask, as a host is given it); frames must be its size."""
         first_frames = detect_frames if first_frames is None else first_frames
         if detect_frames < 1 or first_frames < 1:
             raise OptionError(f"detect_frames and first_frames must be >= 1, got {detect_frames}, {first_frames}")
+        if area is not None and resize != "refuse":
+            raise OptionError("a given content area fits one frame size: resize must be 'refuse'")
+        self._fixed = area is not None
         self._inner = inner
         self._detect_frames = detect_frames
         self._first_frames = first_frames
@@ -325,6 +330,8 @@ class ContentStream(MethodStream):
         self._agreeing = 0
         self._announce: dict[str, Any] | None = None  # the area change recorded with the next frame
         self._placed = False  # an area has been in use (a new frame size then records the area it finds)
+        if area is not None:
+            self._use(area)
 
     @property
     def area(self) -> ContentArea | None:
@@ -335,6 +342,10 @@ class ContentStream(MethodStream):
         check_frame(frame)
         shape = (self._warmup[0] if self._warmup else self._placement.area.fov if self._placement else frame).shape
         if frame.shape[:2] != shape[:2]:
+            if self._fixed:
+                raise FrameShapeError(
+                    f"frame is {frame.shape[1]}x{frame.shape[0]}, the content area given is {shape[1]}x{shape[0]}"
+                )
             if self._resize == "refuse" or self._warmup:
                 raise FrameShapeError(
                     f"frame is {frame.shape[1]}x{frame.shape[0]}, the stream started at "
@@ -342,6 +353,8 @@ class ContentStream(MethodStream):
                 )
             # another picture layout: find its area afresh (frames in flight keep their own placement)
             self._stats, self._placement, self._candidate, self._agreeing = BlockStats(), None, None, 0
+        if self._fixed:
+            return self._send(frame)
         self._stats.add(frame)
         if self._placement is None:
             self._warmup.append(frame)

@@ -8,8 +8,9 @@
 // rule the sidecar gives for its head (gamma, gain-gamma or curve), pulls its tones toward the last output
 // frame's where the sidecar's tone_match says so, starts afresh at a cut to another scene where its scene_cut
 // does (and holds a featureless frame: the last table, no state change), applies the correction to the full-resolution frame through a 256-entry table, and prints one JSON line
-// per frame on standard output. `--out FILE` writes the enhanced frames (raw RGB24) there. Errors: one line on
-// standard error, exit 1 (2 for a usage error).
+// per frame on standard output. `--out FILE` writes the enhanced frames (raw RGB24) there. `--content MASK.pgm`
+// shows the step only the scope's content area (`colonlight content CLIP -o MASK.pgm`) and writes the border and
+// the fixed text unchanged. Errors: one line on standard error, exit 1 (2 for a usage error).
 #include <onnxruntime_cxx_api.h>
 
 #include <algorithm>
@@ -377,10 +378,98 @@ std::string number(double v) {
     return buf;
 }
 
-// Writes rgb through c's table (every sample, every channel), or as it is when c applies none.
-void write_frame(std::ofstream& out, const std::string& out_path, const cv::Mat& rgb, Correction& c) {
+// A scope's content area, read from colonlight's mask image (`colonlight content CLIP -o MASK.pgm`: binary PGM,
+// 255 where the scene shows, 0 outside the field of view, anything between fixed text inside it). The step sees
+// the field of view's bounding box with every non-scene pixel in it filled with the scene's mean colour (rounded
+// half to even, as colonlight rounds), and only scene pixels are written corrected: colonlight.content's rule,
+// so a host given the mask writes what `colonlight enhance --content auto` writes for that area. Off (the whole
+// frame, as without a mask) when every pixel is scene.
+class ContentArea {
+   public:
+    ContentArea() = default;
+
+    static ContentArea read(const std::string& path, int width, int height) {
+        std::ifstream in(path, std::ios::binary);
+        if (!in) throw Failure(path + ": cannot read the content mask");
+        std::string magic;
+        in >> magic;
+        const int mask_width = header_number(in, path), mask_height = header_number(in, path);
+        const int maxval = header_number(in, path);
+        if (magic != "P5" || maxval != 255)
+            throw Failure(path + ": not an 8-bit binary PGM (P5, maxval 255) mask: write it with colonlight content");
+        if (mask_width != width || mask_height != height)
+            throw Failure(path + ": the mask is " + std::to_string(mask_width) + "x" + std::to_string(mask_height) +
+                          ", the frames are " + std::to_string(width) + "x" + std::to_string(height));
+        in.get();  // the single whitespace byte after maxval
+        cv::Mat levels(height, width, CV_8U);
+        in.read(reinterpret_cast<char*>(levels.data), static_cast<std::streamsize>(levels.total()));
+        if (static_cast<std::size_t>(in.gcount()) != levels.total()) throw Failure(path + ": the mask is cut short");
+        ContentArea area;
+        area.scene_ = levels == 255;
+        if (cv::countNonZero(area.scene_) == 0) throw Failure(path + ": no scene pixel (255) in the mask");
+        const cv::Mat fov = levels != 0;
+        area.on_ = cv::countNonZero(area.scene_) != static_cast<int>(levels.total());
+        area.box_ = cv::boundingRect(fov);
+        area.inside_ = area.scene_(area.box_).clone();
+        area.holes_ = area.inside_ == 0;
+        area.has_holes_ = cv::countNonZero(area.holes_) > 0;
+        return area;
+    }
+
+    bool on() const { return on_; }
+
+    // What the step is shown of rgb: the box, its non-scene pixels filled with the scene's mean colour.
+    cv::Mat method_input(const cv::Mat& rgb) const {
+        cv::Mat box = rgb(box_).clone();
+        if (has_holes_) {
+            cv::Scalar mean = cv::mean(box, inside_);
+            for (int ch = 0; ch < 3; ++ch) mean[ch] = std::nearbyint(mean[ch]);
+            box.setTo(cv::Scalar(mean[0], mean[1], mean[2]), holes_);
+        }
+        return box;
+    }
+
+    // rgb with table applied to its scene pixels only (border and text as they came in).
+    cv::Mat corrected(const cv::Mat& rgb, const cv::Mat& table) const {
+        cv::Mat out = rgb.clone(), box;
+        cv::LUT(rgb(box_), table, box);
+        cv::Mat target = out(box_);
+        box.copyTo(target, inside_);
+        return out;
+    }
+
+   private:
+    bool on_ = false, has_holes_ = false;
+    cv::Rect box_;
+    cv::Mat scene_, inside_, holes_;
+
+    // The next number of a PGM header, past whitespace and # comments.
+    static int header_number(std::istream& in, const std::string& path) {
+        while (true) {
+            in >> std::ws;
+            if (in.peek() != '#') break;
+            std::string comment;
+            std::getline(in, comment);
+        }
+        long value = -1;
+        if (!(in >> value) || value <= 0 || value > 1000000)
+            throw Failure(path + ": not an 8-bit binary PGM (P5) mask: its header is damaged");
+        return static_cast<int>(value);
+    }
+};
+
+// Writes rgb through c's table (every sample, every channel; scene pixels only under a content area), or as it is
+// when c applies none.
+void write_frame(std::ofstream& out, const std::string& out_path, const cv::Mat& rgb, Correction& c,
+                 const ContentArea& content) {
     cv::Mat enhanced = rgb;
-    if (c.apply) cv::LUT(rgb, cv::Mat(1, 256, CV_8U, c.lut.data()), enhanced);
+    if (c.apply) {
+        const cv::Mat table(1, 256, CV_8U, c.lut.data());
+        if (content.on())
+            enhanced = content.corrected(rgb, table);
+        else
+            cv::LUT(rgb, table, enhanced);
+    }
     out.write(reinterpret_cast<const char*>(enhanced.data), static_cast<std::streamsize>(enhanced.total() * 3));
     if (!out) throw Failure(out_path + ": write failed");
 }
@@ -395,7 +484,7 @@ json read_json(const std::string& path) {
     }
 }
 
-int run(const std::string& model, int width, int height, const std::string& out_path) {
+int run(const std::string& model, int width, int height, const std::string& out_path, const std::string& mask) {
     const json side = read_json(model + ".json");
     const int size = side.at("input_size").get<int>();
     const json& frame_input = side.at("inputs").at(0);
@@ -406,6 +495,7 @@ int run(const std::string& model, int width, int height, const std::string& out_
     const Rule rule = Rule::from_sidecar(side);
     ToneMatcher matcher(side);
     SceneCuts cuts(side);
+    const ContentArea content = mask.empty() ? ContentArea() : ContentArea::read(mask, width, height);
 
     // Inputs: the frame, then the state tensors (zeros); outputs: the head's, then each state's "<name>_out".
     std::vector<std::string> in_names, out_names;
@@ -448,13 +538,14 @@ int run(const std::string& model, int width, int height, const std::string& out_
         if (static_cast<std::size_t>(std::cin.gcount()) != frame_bytes)
             throw Failure("standard input ended inside frame " + std::to_string(index) + " (not " +
                           std::to_string(width) + "x" + std::to_string(height) + " RGB24?)");
-        cv::Mat rgb(height, width, CV_8UC3, buffer.data());
+        const cv::Mat whole(height, width, CV_8UC3, buffer.data());
+        const cv::Mat rgb = content.on() ? content.method_input(whole) : whole;  // what the step and its rules see
         const Verdict verdict = cuts.on() ? cuts.judge(rgb) : Verdict::continues;
         if (verdict == Verdict::featureless) {  // held: the last frame's table, no state changes
             std::cout << "{\"index\": " << index << ", \"head\": [], \"seed\": false, \"scene_cut\": false, "
                       << "\"held\": true, \"gamma\": " << number(last.gamma) << ", \"clamped\": false}\n"
                       << std::flush;
-            if (out_file.is_open()) write_frame(out_file, out_path, rgb, last);
+            if (out_file.is_open()) write_frame(out_file, out_path, whole, last, content);
             continue;
         }
         const bool cut = verdict == Verdict::cut;
@@ -512,7 +603,7 @@ int run(const std::string& model, int width, int height, const std::string& out_
         line += ", \"clamped\": " + std::string(c.clamped ? "true" : "false") + "}";
         std::cout << line << '\n' << std::flush;
 
-        if (out_file.is_open()) write_frame(out_file, out_path, rgb, c);
+        if (out_file.is_open()) write_frame(out_file, out_path, whole, c, content);
         last = c;
     }
     return 0;
@@ -521,12 +612,14 @@ int run(const std::string& model, int width, int height, const std::string& out_
 }  // namespace
 
 int main(int argc, char** argv) {
-    std::string out_path;
+    std::string out_path, mask;
     std::vector<std::string> args;
     for (int i = 1; i < argc; ++i) {
         std::string a = argv[i];
         if (a == "--out" && i + 1 < argc)
             out_path = argv[++i];
+        else if (a == "--content" && i + 1 < argc)
+            mask = argv[++i];
         else
             args.push_back(a);
     }
@@ -536,11 +629,12 @@ int main(int argc, char** argv) {
         height = std::atoi(args[2].c_str());
     }
     if (width <= 0 || height <= 0) {
-        std::cerr << "usage: colonlight_host MODEL.onnx WIDTH HEIGHT [--out ENHANCED.rgb] < frames.rgb (raw RGB24)\n";
+        std::cerr << "usage: colonlight_host MODEL.onnx WIDTH HEIGHT [--out ENHANCED.rgb] [--content MASK.pgm] "
+                     "< frames.rgb (raw RGB24)\n";
         return 2;
     }
     try {
-        return run(args[0], width, height, out_path);
+        return run(args[0], width, height, out_path, mask);
     } catch (const Failure& e) {
         std::cerr << "error: " << e.what() << '\n';
     } catch (const Ort::Exception& e) {

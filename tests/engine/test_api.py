@@ -45,6 +45,7 @@ def test_all_is_sorted_and_pinned() -> None:
         "atomic_path",
         "available_methods",
         "clip_frames",
+        "content_mask_format",
         "content_stream",
         "create_method",
         "default_workers",
@@ -56,6 +57,7 @@ def test_all_is_sorted_and_pinned() -> None:
         "estimate_frames",
         "export_epoch",
         "export_onnx",
+        "find_content_area",
         "gamma_lut",
         "is_available",
         "iter_enhanced",
@@ -73,6 +75,7 @@ def test_all_is_sorted_and_pinned() -> None:
         "prepare_output",
         "probe_video",
         "read_camera",
+        "read_content_mask",
         "read_json",
         "resolve_device",
         "reuse_frame_memory",
@@ -84,6 +87,7 @@ def test_all_is_sorted_and_pinned() -> None:
         "train_zerodce",
         "tune_for_clips",
         "warm_method",
+        "write_content_mask",
         "write_json_atomic",
     ]
     for name in colonlight.__all__:

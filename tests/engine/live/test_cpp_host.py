@@ -223,3 +223,61 @@ def test_the_cpp_host_holds_a_featureless_frame(host: Path, clip: list[np.ndarra
     written = alone[at - 1][clip[at - 1] == 0]  # the last table at 0, read off the frame before
     assert written.size and np.all(frames[at] == written[0])
     assert np.max(np.abs(frames[at].astype(int) - ours[at].frame.astype(int))) <= 1  # and colonlight's
+
+
+def test_the_cpp_host_given_a_content_mask_writes_what_enhance_writes(
+    host: Path, clip: list[np.ndarray], tmp_path: Path
+) -> None:
+    """A clip behind a round border with on-screen text: given the mask `colonlight content` writes, the host shows
+    the step the content area as `colonlight enhance --content auto` does, so its corrections are colonlight's and
+    every border and text pixel is written as it came in; without the mask the border moves its corrections."""
+    from colonlight.content import content_stream
+    from colonlight.content_mask import find_content_area, write_content_mask
+    from colonlight.synth.overlay import OverlaySpec
+
+    spec = OverlaySpec(border="round", fov=0.9, text=True)
+    framed = [spec.apply(f) for f in clip]
+    found = find_content_area(framed)
+    assert not found.area.is_full and found.area.overlay.any() and not found.changes
+    mask = tmp_path / "content.pgm"
+    write_content_mask(mask, found.area)
+    method = RecurrentGammaMethod(weights=load_weights(), device="cpu")
+    stream = content_stream(method, "auto")
+    ours = [r for f in framed for r in stream.push(f)] + stream.flush()
+    onnx = tmp_path / "model.onnx"
+    export_onnx(load_weights(), onnx, size=method.model_size)
+    raw = b"".join(np.ascontiguousarray(f).tobytes() for f in framed)
+    run = [str(host), str(onnx), str(WIDTH), str(HEIGHT), "--out", str(tmp_path / "masked.rgb"), "--content", str(mask)]
+    result = subprocess.run(run, input=raw, capture_output=True, timeout=300)
+    assert result.returncode == 0, result.stderr.decode()
+    records = [json.loads(line) for line in result.stdout.decode().splitlines()]
+    frames = np.fromfile(tmp_path / "masked.rgb", np.uint8).reshape(-1, HEIGHT, WIDTH, 3)
+    assert len(records) == len(frames) == len(ours) == FRAMES
+    scene = found.area.mask
+    for frame, out, record, result_ in zip(framed, frames, records, ours, strict=True):
+        assert np.array_equal(out[~scene], frame[~scene])  # border and text exactly as they came in
+        assert np.max(np.abs(out.astype(int) - result_.frame.astype(int))) <= 1  # colonlight's, to a .5 rounding
+        assert math.isclose(record["gamma"], result_.gamma, rel_tol=0, abs_tol=1e-4)
+    whole = _run_host(host, onnx, framed, tmp_path / "whole.rgb")  # the same frames, the border shown to the step
+    assert max(abs(a["gamma"] - b["gamma"]) for a, b in zip(whole, records, strict=True)) > 0.05
+
+
+@pytest.mark.parametrize(
+    ("content", "says"),
+    [
+        (b"P5\n8 8\n255\n" + bytes([255]) * 64, "the mask is 8x8, the frames are 16x12"),
+        (b"P2\n16 12\n255\n" + bytes([255]) * 192, "not an 8-bit binary PGM"),
+        (b"P5\n16 12\n255\n" + bytes([255]) * 100, "cut short"),
+        (b"P5\n16 12\n255\n" + bytes(192), "no scene pixel"),
+    ],
+)
+def test_the_cpp_host_refuses_a_bad_content_mask_in_one_line(
+    host: Path, tmp_path: Path, content: bytes, says: str
+) -> None:
+    onnx = tmp_path / "model.onnx"
+    export_onnx(load_weights(), onnx, size=8)
+    mask = tmp_path / "mask.pgm"
+    mask.write_bytes(content)
+    bad = subprocess.run([str(host), str(onnx), "16", "12", "--content", str(mask)], capture_output=True, input=b"")
+    message = bad.stderr.decode()
+    assert bad.returncode == 1 and message.count("\n") == 1 and str(mask) in message and says in message, message
