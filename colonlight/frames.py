@@ -274,6 +274,12 @@ def encode_image(
         raise ValueError(f"expected an HxWx3 uint8 RGB frame, got {rgb.shape} {rgb.dtype}")
     if rgb.size == 0:  # cvtColor's "(-215:Assertion failed) !_src.empty()" otherwise
         raise ValueError(f"expected an HxWx3 uint8 RGB frame with at least one pixel, got {rgb.shape}")
+    for name, value, top in (("quality", quality, 100), ("png_compression", png_compression, 9)):
+        # int() of NaN, of an infinity or of '90' failed with Python's own words; OpenCV clamps what is out of range
+        if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+            raise OptionError(f"{name} must be a number within 0..{top}, got {value!r}")
+        if not (math.isfinite(value) and 0 <= value <= top):
+            raise OptionError(f"{name} must be within 0..{top}, got {value}")
     if fmt in ("jpg", "jpeg") and max(rgb.shape[:2]) > MAX_JPEG_SIDE:
         # the format's own limit: OpenCV printed "[ERROR:...] imencode(): can't encode data ... Maximum supported
         # image dimension is 65500 pixels" on stderr, once per writer thread, beside a line that gave no cause

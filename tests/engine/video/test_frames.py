@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from colonlight.errors import InputError
+from colonlight.errors import InputError, OptionError
 from colonlight.frames import (
     IMAGE_SUFFIXES,
     encode_image,
@@ -205,6 +205,11 @@ def test_encode_and_atomic_write(tmp_path: Path) -> None:
     for bad_fmt, bad_img in (("gif", rgb), ("png", rgb[..., 0]), ("png", rgb.astype(np.float32))):
         with pytest.raises(ValueError):
             encode_image(bad_img, bad_fmt)
+    for bad in (float("nan"), float("inf"), -1, 101, "90", True, None):  # int(nan) failed in Python's words
+        with pytest.raises(OptionError, match="quality"):
+            encode_image(rgb, "jpg", quality=bad)  # type: ignore[arg-type]
+    with pytest.raises(OptionError, match="png_compression"):
+        encode_image(rgb, png_compression=10)
     out = tmp_path / "out" / "000000.jpg"
     write_image_atomic(out, rgb, fmt="jpg", quality=95)
     assert read_index(read_image(out)) == 9
