@@ -128,7 +128,7 @@ def enhance(
         try:
             failed = _run(inputs, output, spec, clip_opts, pattern, workers, cluster, overwrite, quiet, debug)
         except KeyboardInterrupt:
-            console.print(INTERRUPTED, markup=False)
+            error_line(INTERRUPTED)  # the one wording every command ends an interrupt with
             raise typer.Exit(exit_code(received)) from None
     if failed:
         raise typer.Exit(1)

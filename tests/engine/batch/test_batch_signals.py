@@ -3,7 +3,7 @@
 * SIGKILL of the batch process with ``-j 2`` leaves no worker (nor any other child) alive: the workers ask the
   kernel to kill them with their parent (``PR_SET_PDEATHSIG``), checked through ``/proc``.
 * Ctrl-C (SIGINT to the process, or to its whole process group as a terminal sends it) and SIGTERM, with
-  ``-j 1`` and ``-j 2``: exactly one line "interrupted; rerun the same command to resume", exit 130 (143 for
+  ``-j 1`` and ``-j 2``: exactly one line "error: interrupted; rerun the same command to resume", exit 130 (143 for
   SIGTERM), no temporary left, every frame on disk complete, and the rerun finishes the batch.
 """
 
@@ -27,7 +27,7 @@ from ...media import make_clip
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc; PR_SET_PDEATHSIG is Linux's")
 
-INTERRUPTED = "interrupted; rerun the same command to resume"
+INTERRUPTED = "error: interrupted; rerun the same command to resume"
 
 
 def command(*args: object) -> list[str]:
