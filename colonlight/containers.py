@@ -91,6 +91,19 @@ def _iso_overrun(path: Path, size: int) -> tuple[str, int] | None:
     return None
 
 
+def index_cut(path: Path) -> tuple[int, int] | None:
+    """(file size, where the box ends) if ``path`` is an ISO media file (mp4, mov) cut inside its index, the
+    top-level 'moov' box; None otherwise (no ISO file, boxes that fit, or a cut elsewhere)."""
+    try:
+        size = os.stat(path).st_size
+        if _read(path, 0, 8)[4:8] not in (b"ftyp", b"moov", b"free", b"wide", b"mdat"):
+            return None
+        box = _iso_overrun(path, size)
+    except OSError:
+        return None
+    return (size, box[1]) if box is not None and box[0] == "moov" else None
+
+
 def _ebml_overrun(path: Path, size: int) -> int | None:
     """The end of a Matroska element (after the EBML header, in a Segment of unknown size) that runs past
     ``size``; elements of unknown size (the Segment, live Clusters) are entered, the others skipped."""

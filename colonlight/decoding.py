@@ -29,11 +29,12 @@ import av
 import numpy as np
 from av.video.reformatter import VideoReformatter
 
-from .containers import declared_end, truncation_reason
+from .containers import declared_end, index_cut, truncation_reason
 from .errors import FrameTooLargeError, InputError
 from .fps import FpsRun, FpsSelector
 from .limits import DEFAULT_FPS, MAX_GAP_FRAMES_ENV, max_gap_frames_setting, max_pixels_setting
 from .rotation import Transform, display_matrix, orientation, rotation_tag
+from .stream_choice import main_video_stream
 from .timestamps import FfmpegTimestamps
 
 log = logging.getLogger(__name__)
@@ -64,8 +65,10 @@ VIDEO_SUFFIXES = frozenset(
     ]
 )
 
-# Demuxers that open still images, animations or text as a "video" stream: such files are not clips.
-_NOT_VIDEO_FORMATS = frozenset({"image2", "tty", "bin", "xbin", "idf", "adf", "apng", "gif"})
+# Demuxers that open still images, animations or text as a "video" stream: such files are not clips. CD+G
+# ("cdg", karaoke graphics from a CD's subcode) too: its probe asks only that a few bytes have certain low bits,
+# and takes about one small file of random bytes in 700 (16-320 bytes), so a folder of data files had "clips".
+_NOT_VIDEO_FORMATS = frozenset({"image2", "tty", "bin", "xbin", "idf", "adf", "apng", "gif", "cdg"})
 
 
 def is_still_format(fmt: str) -> bool:
@@ -190,11 +193,28 @@ def _looks_like_mp4(path: Path) -> bool:
         return False
 
 
+def _index_cut_error(path: Path) -> InputError | None:
+    """The error for an MP4/MOV cut inside its index ('moov'), if it is one. FFmpeg reads such a file as having
+    no video stream, a stream of no known codec or no frame at all, depending on where the cut falls: each of
+    those said alone sends the user looking for the wrong cause."""
+    cut = index_cut(path)
+    if cut is None:
+        return None
+    size, end = cut
+    return _error(
+        path,
+        f"truncated MP4/MOV: the file ends at byte {size}, inside its index (the 'moov' box, which ends at "
+        f"byte {end}); no frame can be read",
+    )
+
+
 def _open_container(path: Path, options: dict[str, str]) -> tuple[Any, Any]:
     """``av.open`` with ``options`` for its stream probe, and the main video stream; InputError if no video."""
     try:
         container = av.open(str(path), mode="r", metadata_errors="replace", options=options)
     except (av.error.FFmpegError, OSError, UnicodeError, ValueError) as exc:
+        if isinstance(exc, av.error.FFmpegError) and (cut := _index_cut_error(path)) is not None:
+            raise cut from exc
         if isinstance(exc, av.error.InvalidDataError) and _looks_like_mp4(path):
             raise _error(path, "truncated or unfinished MP4/MOV: its index ('moov') is missing") from exc
         end, size = declared_end(path), _file_size(path)
@@ -209,14 +229,11 @@ def _open_container(path: Path, options: dict[str, str]) -> tuple[Any, Any]:
         fmt = container.format.name
         if is_still_format(fmt):
             raise _error(path, f"not a video: the content is a still image, animation or text ({fmt})")
-        attached = av.stream.Disposition.attached_pic  # cover art of an audio file
-        candidates = [s for s in container.streams.video if not s.disposition & attached]
-        if not candidates:
-            raise _error(path, "contains no video stream")
-        best = container.streams.best("video")
-        stream = best if best in candidates else candidates[0]
-        if stream.codec_context is None:
-            raise _error(path, "no decoder for its video codec")
+        stream = main_video_stream(container.streams.video)  # the one `ffmpeg -i` takes; never cover art
+        if stream is None or stream.codec_context is None:
+            raise _index_cut_error(path) or _error(
+                path, "contains no video stream" if stream is None else "no decoder for its video codec"
+            )
     except BaseException:
         container.close()
         raise
@@ -350,7 +367,7 @@ def probe_video(path: Path, max_pixels: int | None = None) -> VideoInfo:
     with container:
         first = next(iter(_frames(path, container, stream, None, DecodeReport(), cap)), None)
         if first is None:
-            raise _error(path, "no decodable video frames (truncated or corrupt?)")
+            raise _index_cut_error(path) or _error(path, "no decodable video frames (truncated or corrupt?)")
         rotation, _ = orientation(display_matrix(first), rotation_tag(stream))
         width, height = (first.height, first.width) if rotation % 180 == 90 else (first.width, first.height)
         rate = stream.average_rate or stream.guessed_rate
@@ -510,7 +527,7 @@ def _decode(
             for k in [k for k in held if k not in keep]:
                 del held[k]
     if decoded == 0:
-        raise _error(path, "no decodable video frames (truncated or corrupt?)")
+        raise _index_cut_error(path) or _error(path, "no decodable video frames (truncated or corrupt?)")
     if decoded < min_frames:
         raise _error(path, f"too short: {decoded} frame(s) decoded, at least {min_frames} needed")
     report.discontinuities = ts.packets.discontinuities

@@ -21,6 +21,7 @@ import av
 
 from ..decoding import is_still_format
 from ..errors import InputError
+from ..stream_choice import main_video_stream
 
 #: URL schemes read as network streams (FFmpeg protocols).
 NETWORK_SCHEMES = frozenset({"rtsp", "rtsps", "rtmp", "rtmps", "udp", "rtp", "tcp", "http", "https"})
@@ -197,10 +198,9 @@ def open_source(spec: SourceSpec, timeout_s: float, stop: threading.Event | None
                 f"{spec.text}: not a video: the content is a still image, animation or text ({fmt}); "
                 "`colonlight stream` reads a video file, a capture device, a stream URL or -"
             )
-        streams = [s for s in container.streams.video if not s.disposition & av.stream.Disposition.attached_pic]
-        if not streams:
+        stream = main_video_stream(container.streams.video)  # as `enhance` and `ffmpeg -i` choose it
+        if stream is None:
             raise InputError(f"{spec.text}: holds no video stream")
-        stream = streams[0]
         if stream.codec_context is None:
             raise InputError(f"{spec.text}: no decoder for its video codec")
         # A live frame must leave the decoder as soon as its packet is in: slice threads only (frame threads hold
