@@ -10,7 +10,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from colonlight import ColonlightError, parse_content_mode
+from colonlight import ColonlightError, parse_content
 from colonlight.limits import DEFAULT_FPS
 
 from . import options
@@ -249,7 +249,7 @@ def evaluate(
     if brightness not in ("fixed", "affine", "both"):
         raise typer.BadParameter("choose fixed, affine or both", param_hint="--brightness")
     try:
-        content = parse_content_mode(content)
+        content = parse_content(content)
     except ColonlightError as exc:
         raise typer.BadParameter(str(exc), param_hint="--content") from None
     with ends_command(USAGE, debug):

@@ -106,7 +106,8 @@ Content = typer.Option(
     envvar="COLONLIGHT_CONTENT",
     help="auto: find the field of view inside a black border and fixed on-screen text, let the method see only "
     "them and write border and text pixels unchanged (a frame without either is processed as with full); "
-    "full: the whole frame.",
+    "full: the whole frame; or a mask image (`colonlight content`'s, or drawn: 255 scene, 0 border) used for "
+    "every frame.",
 )
 #: The help of the synthetic clip mix, for ``synth --steady`` and ``train --synthetic-steady`` alike.
 _MIX_HELP = {

@@ -37,10 +37,11 @@ _EXPORTS: dict[str, str] = {
     "ContentMode": "content",
     "content_stream": "content",
     "content_mask_format": "content_mask",
-    "find_content_area": "content_mask",
+    "find_content_area": "content",
     "read_content_mask": "content_mask",
     "write_content_mask": "content_mask",
     "live_content_stream": "content",
+    "parse_content": "content",
     "parse_content_mode": "content",
     "apply_gamma": "curves",
     "apply_lut": "curves",
@@ -107,8 +108,16 @@ if TYPE_CHECKING:
     from .batch import MANIFEST_FILE, ManifestError, default_workers, run_batch, warm_method
     from .checkpoint import DEFAULT_WEIGHTS, LoadedWeights, load_weights, save_weights
     from .cluster import ClusterRunner
-    from .content import DEFAULT_CONTENT, ContentMode, content_stream, live_content_stream, parse_content_mode
-    from .content_mask import content_mask_format, find_content_area, read_content_mask, write_content_mask
+    from .content import (
+        DEFAULT_CONTENT,
+        ContentMode,
+        content_stream,
+        find_content_area,
+        live_content_stream,
+        parse_content,
+        parse_content_mode,
+    )
+    from .content_mask import content_mask_format, read_content_mask, write_content_mask
     from .curves import apply_gamma, apply_lut, gamma_lut
     from .device import resolve_device
     from .discovery import VIDEO_SUFFIXES, PathProblem, discover, discover_clips, synthetic_folder_of
@@ -205,6 +214,7 @@ __all__ = [
     "network_threads",
     "onnx_sidecar_path",
     "output_lock",
+    "parse_content",
     "parse_content_mode",
     "parse_frame_steps",
     "parse_json",

@@ -29,14 +29,18 @@ from __future__ import annotations
 
 import dataclasses
 from collections import deque
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal
 
 import cv2
 import numpy as np
-import numpy.typing as npt
 
-from .errors import FrameShapeError, OptionError
+from .content_area import ContentArea, iou
+from .content_mask import mask_digest, read_content_mask
+from .errors import FrameShapeError, InputError, OptionError
+from .methods import create_method
 from .methods.base import FrameResult, Method, MethodStream, check_frame
 
 ContentMode = Literal["auto", "full"]
@@ -70,14 +74,37 @@ DETECT_FRAMES = 18
 #: blocks of ``DETECT_FRAMES`` correct it. Seen whole, a disc border drove the shipped network to gamma 0.12.
 LIVE_FIRST_FRAMES = 1
 CHANGE_BLOCKS = 2
-#: Areas whose fields of view overlap this much (IoU) and whose overlays differ by at most ``OVERLAY_SLACK`` of
-#: their pixels (or 16 pixels) are the same area.
-SAME_IOU = 0.98
-OVERLAY_SLACK = 0.1
 
 _DISC3 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
 _DISC5 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
 _SQUARE3 = np.ones((3, 3), np.uint8)
+
+
+def parse_content(value: str | Path) -> str:
+    """``"auto"`` or ``"full"`` (any case), else the absolute path of a readable content mask (``colonlight
+    content``'s, or one drawn by hand: 255 scene, 0 border), as text (absolute: a cluster's worker processes read
+    it from their own working folders); OptionError naming the file and the cause otherwise.
+    For the shells that run on the user's own files (``enhance``, ``stream``, ``evaluate``); the service takes
+    :func:`parse_content_mode`'s two words only, never a path on the server."""
+    word = str(value).strip().lower()
+    if word in CONTENT_MODES:
+        return word
+    wanted = f"content must be {', '.join(CONTENT_MODES)} or a mask image"
+    if not str(value).strip():
+        raise OptionError(f"{wanted}, got {value!r}")
+    try:
+        read_content_mask(Path(value))
+    except InputError as exc:
+        raise OptionError(f"{wanted}: {exc}") from None
+    return str(Path(value).absolute())
+
+
+def content_setting(content: str) -> str | dict[str, str]:
+    """What an output records of ``content`` (parsed): the word, or a mask's path with the SHA-256 of its bytes,
+    so that the same mask gives the same record and an edited one is seen as another setting."""
+    if content in CONTENT_MODES:
+        return content
+    return {"mask": content, "sha256": mask_digest(Path(content))}
 
 
 def parse_content_mode(value: str) -> ContentMode:
@@ -86,59 +113,6 @@ def parse_content_mode(value: str) -> ContentMode:
     if word not in CONTENT_MODES:
         raise OptionError(f"content must be one of {', '.join(CONTENT_MODES)}, got {value!r}")
     return word  # type: ignore[return-value]
-
-
-# ----------------------------------------------------------------------------------------------- the area
-
-
-@dataclass(frozen=True, eq=False)
-class ContentArea:
-    """Where the scene is: ``fov`` (field of view) and ``overlay`` (fixed text inside it), ``(H, W)`` bool."""
-
-    fov: npt.NDArray[np.bool_]
-    overlay: npt.NDArray[np.bool_]
-
-    @staticmethod
-    def full(height: int, width: int) -> ContentArea:
-        return ContentArea(np.ones((height, width), bool), np.zeros((height, width), bool))
-
-    @property
-    def is_full(self) -> bool:
-        """True if every pixel is content: the method then sees the frame itself."""
-        return bool(self.fov.all()) and not bool(self.overlay.any())
-
-    @property
-    def mask(self) -> np.ndarray:
-        """``(H, W)`` bool: content pixels (inside the field of view, not overlay)."""
-        return self.fov & ~self.overlay
-
-    def box(self) -> tuple[int, int, int, int]:
-        """``(x, y, w, h)`` of the field of view's bounding box."""
-        x, y, w, h = cv2.boundingRect(self.fov.astype(np.uint8))
-        return int(x), int(y), int(w), int(h)
-
-    def summary(self) -> dict[str, Any]:
-        """What is recorded in ``gammas.json`` when the area changes."""
-        if self.is_full:
-            return {"full": True}
-        return {
-            "box": list(self.box()),
-            "fov_fraction": round(float(self.fov.mean()), 4),
-            "overlay_pixels": int(self.overlay.sum()),
-        }
-
-    def same_as(self, other: ContentArea) -> bool:
-        """True if the two areas are close enough that switching would change nothing worth a switch."""
-        if self.fov.shape != other.fov.shape or iou(self.fov, other.fov) < SAME_IOU:
-            return False
-        differ = int(np.count_nonzero(self.overlay ^ other.overlay))
-        return differ <= max(16, OVERLAY_SLACK * max(int(self.overlay.sum()), int(other.overlay.sum())))
-
-
-def iou(a: np.ndarray, b: np.ndarray) -> float:
-    """Intersection over union of two bool masks (1.0 for two empty masks)."""
-    union = int(np.count_nonzero(a | b))
-    return 1.0 if union == 0 else int(np.count_nonzero(a & b)) / union
 
 
 # ----------------------------------------------------------------------------------------------- detection
@@ -307,17 +281,20 @@ class ContentStream(MethodStream):
         first_frames: int | None = None,
         resize: Literal["refuse", "redetect"] = "refuse",
         area: ContentArea | None = None,
+        area_name: str = "the content area given",
     ) -> None:
         """``first_frames``: frames held back for the first decision (default ``detect_frames``). ``resize``: a
         frame of another size is refused (a clip has one size), or starts a new detection (a live source may
         reconnect at another size; the method's own stream, and its state, go on). ``area``: use this area for
-        every frame and detect nothing (a scope's known mask, as a host is given it); frames must be its size."""
+        every frame and detect nothing (a scope's known mask, as a host is given it); frames must be its size, or
+        fail naming ``area_name``."""
         first_frames = detect_frames if first_frames is None else first_frames
         if detect_frames < 1 or first_frames < 1:
             raise OptionError(f"detect_frames and first_frames must be >= 1, got {detect_frames}, {first_frames}")
         if area is not None and resize != "refuse":
             raise OptionError("a given content area fits one frame size: resize must be 'refuse'")
         self._fixed = area is not None
+        self._area_name = area_name
         self._inner = inner
         self._detect_frames = detect_frames
         self._first_frames = first_frames
@@ -344,7 +321,7 @@ class ContentStream(MethodStream):
         if frame.shape[:2] != shape[:2]:
             if self._fixed:
                 raise FrameShapeError(
-                    f"frame is {frame.shape[1]}x{frame.shape[0]}, the content area given is {shape[1]}x{shape[0]}"
+                    f"frame is {frame.shape[1]}x{frame.shape[0]}, {self._area_name} is {shape[1]}x{shape[0]}"
                 )
             if self._resize == "refuse" or self._warmup:
                 raise FrameShapeError(
@@ -429,12 +406,48 @@ class ContentStream(MethodStream):
 
 
 def content_stream(method: Method, mode: str = DEFAULT_CONTENT, *, live: bool = False) -> MethodStream:
-    """A fresh stream of ``method`` for one clip, shown the content area (``auto``) or the whole frame
-    (``full``). ``live``: for a source that cannot wait, :func:`live_content_stream`."""
+    """A fresh stream of ``method`` for one clip, shown the content area (``auto``), the whole frame (``full``)
+    or the area of a mask image (any other value: its path, :func:`parse_content`). ``live``: for a source that
+    cannot wait, :func:`live_content_stream`."""
     inner = method.stream()
-    if parse_content_mode(mode) == "full":
+    word = parse_content(mode)
+    if word == "full":
         return inner
+    if word != "auto":  # read for each clip: a worker process of a cluster reads the mask itself
+        return ContentStream(inner, area=read_content_mask(Path(word)), area_name=f"the content mask {word}")
     return ContentStream(inner, first_frames=LIVE_FIRST_FRAMES, resize="redetect") if live else ContentStream(inner)
+
+
+@dataclass(frozen=True)
+class FoundArea:
+    """What :func:`find_content_area` saw: the area in use after the last frame, and where it changed."""
+
+    area: ContentArea
+    frames: int  # frames looked at
+    changes: tuple[int, ...]  # frames from which a new area was in use (after the first)
+
+
+def find_content_area(frames: Iterable[np.ndarray], source: object = "the frames") -> FoundArea:
+    """The content area ``colonlight enhance`` uses on ``frames`` (``--content auto``), found exactly as it finds
+    it: its stream run over the frames with a method that changes nothing. ``InputError`` naming ``source`` if
+    there is no frame."""
+    stream = ContentStream(create_method("none").stream())
+    count, changes = 0, []
+    for results in _pushed(stream, frames):
+        for res in results:
+            if "content" in res.info and count > 0:
+                changes.append(count)
+            count += 1
+    if stream.area is None:
+        raise InputError(f"{source}: no frames to find a content area in")
+    return FoundArea(stream.area, count, tuple(changes))
+
+
+def _pushed(stream: ContentStream, frames: Iterable[np.ndarray]) -> Iterator[list[FrameResult]]:
+    """Each frame's results, then the stream's flush."""
+    for frame in frames:
+        yield stream.push(frame)
+    yield stream.flush()
 
 
 def live_content_stream(method: Method, mode: str = DEFAULT_CONTENT) -> MethodStream:
@@ -449,11 +462,15 @@ __all__ = [
     "ContentArea",
     "ContentMode",
     "ContentStream",
+    "FoundArea",
+    "content_setting",
     "content_stream",
+    "find_content_area",
     "live_content_stream",
     "detect_area",
     "detect_fov",
     "detect_overlay",
     "iou",
+    "parse_content",
     "parse_content_mode",
 ]

@@ -12,21 +12,18 @@ colour, and only scene pixels are written back (README, C++ SLAM host).
 
 from __future__ import annotations
 
+import hashlib
 import os
 import stat
-from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from .atomic import NOT_REGULAR_FILE, atomic_path
-from .content import ContentArea, ContentStream
+from .content_area import ContentArea
 from .errors import InputError, OptionError
 from .frames import check_image_size, read_image
-from .methods import create_method
-from .methods.base import FrameResult
 
 SCENE, OVERLAY, BORDER = 255, 128, 0
 #: The names a mask is written under: PGM (what the C++ host reads) or PNG.
@@ -78,6 +75,12 @@ def write_content_mask(path: Path, area: ContentArea) -> None:
         tmp.write_bytes(data)
 
 
+def mask_digest(path: Path) -> str:
+    """The SHA-256 of the mask file's bytes: what an output records of the mask it was made with."""
+    with open(path, "rb") as f:
+        return hashlib.file_digest(f, "sha256").hexdigest()
+
+
 def read_content_mask(path: Path) -> ContentArea:
     """The area in the mask image at ``path``. InputError naming the file if it cannot be read, is not one grey
     channel, or shows no scene."""
@@ -98,48 +101,15 @@ def read_content_mask(path: Path) -> ContentArea:
         raise InputError(f"{path}: {exc}") from None
 
 
-@dataclass(frozen=True)
-class FoundArea:
-    """What :func:`find_content_area` saw: the area in use after the last frame, and where it changed."""
-
-    area: ContentArea
-    frames: int  # frames looked at
-    changes: tuple[int, ...]  # frames from which a new area was in use (after the first)
-
-
-def find_content_area(frames: Iterable[np.ndarray], source: object = "the frames") -> FoundArea:
-    """The content area ``colonlight enhance`` uses on ``frames`` (``--content auto``), found exactly as it finds
-    it: its stream run over the frames with a method that changes nothing. ``InputError`` naming ``source`` if
-    there is no frame."""
-    stream = ContentStream(create_method("none").stream())
-    count, changes = 0, []
-    for results in _pushed(stream, frames):
-        for res in results:
-            if "content" in res.info and count > 0:
-                changes.append(count)
-            count += 1
-    if stream.area is None:
-        raise InputError(f"{source}: no frames to find a content area in")
-    return FoundArea(stream.area, count, tuple(changes))
-
-
-def _pushed(stream: ContentStream, frames: Iterable[np.ndarray]) -> Iterator[list[FrameResult]]:
-    """Each frame's results, then the stream's flush."""
-    for frame in frames:
-        yield stream.push(frame)
-    yield stream.flush()
-
-
 __all__ = [
     "BORDER",
     "MASK_SUFFIXES",
     "OVERLAY",
     "SCENE",
-    "FoundArea",
     "area_image",
     "content_mask_format",
-    "find_content_area",
     "image_area",
+    "mask_digest",
     "pgm_bytes",
     "read_content_mask",
     "write_content_mask",

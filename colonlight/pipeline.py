@@ -35,7 +35,7 @@ import numpy as np
 
 from . import __version__
 from .atomic import publish, read_json, remove_stale_temporaries, write_json_atomic, write_temporary
-from .content import DEFAULT_CONTENT, content_stream, parse_content_mode
+from .content import DEFAULT_CONTENT, content_setting, content_stream, parse_content
 from .errors import InputError, OptionError
 from .frames import encode_image
 from .limits import (
@@ -117,13 +117,14 @@ class ClipOptions:
     #: Most copies of one frame a timestamp gap may add; past it the clip fails (limits.max_gap_frames_setting()).
     #: Not in the settings record: it decides whether a clip fails, never a byte of a clip that is done.
     max_gap_frames: int = field(default_factory=max_gap_frames_setting)
-    content: str = DEFAULT_CONTENT  # auto: the method sees the field of view less fixed text (colonlight.content)
+    #: auto: the method sees the field of view less fixed text; full: the whole frame; else a mask's path (content)
+    content: str = DEFAULT_CONTENT
 
     def __post_init__(self) -> None:
         # Each value's type is checked with its range (methods.base's helpers): "18" or None compared with a
         # number was a TypeError of "<=", a NaN max_pixels a ValueError of int() once the clip ran, and a NaN,
         # negative or huge folder_fps wrote NaN, negative or all-zero times into times.txt and gammas.json.
-        object.__setattr__(self, "content", parse_content_mode(self.content))
+        object.__setattr__(self, "content", parse_content(self.content))
         if self.format not in ("png", "jpg"):
             raise OptionError(f"format must be png or jpg, got {self.format!r}")
         quality = integer_option("quality", self.quality, f"within {MIN_JPEG_QUALITY}..{MAX_JPEG_QUALITY}")
@@ -169,7 +170,7 @@ def settings_record(method: Method, opts: ClipOptions) -> dict[str, Any]:
         "model": method.model_info(),
         "parameters": method.parameters(),
         "fps": opts.fps or None,
-        "content": opts.content,
+        "content": content_setting(opts.content),
         "outputs": {"frames": opts.frames, "video": opts.video, "format": opts.format, "quality": opts.quality},
         **camera_setting(opts.camera),
     }

@@ -30,7 +30,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..content import DEFAULT_CONTENT, content_stream, parse_content_mode
+from ..content import DEFAULT_CONTENT, content_setting, content_stream, find_content_area, parse_content
+from ..content_mask import read_content_mask
 from ..errors import ColonlightError, OptionError
 from ..limits import DEFAULT_FPS
 from ..methods import Method, available_methods, create_method
@@ -115,7 +116,9 @@ def _correspondences(clip: EvalClip) -> tuple[str, list[Correspondence]]:
 NO_DEPTH_REASON = "no depth: tracking needs a synthetic clip's known depth"
 
 
-def _track(clip: EvalClip, frames: list[np.ndarray], settings: TrackerSettings) -> dict[str, Any]:
+def _track(
+    clip: EvalClip, frames: list[np.ndarray], settings: TrackerSettings, scene: np.ndarray | None = None
+) -> dict[str, Any]:
     """Track the enhanced frames with known depth; per-clip pose errors are medians over frames 1.. (a diverged
     track's errors are astronomically large, so a mean would say nothing), maxima flag the worst frame.
     ``tracked_fraction``: the fraction of frames 1.. that did not fail; ``frame_ok`` and ``keyframe_of`` per
@@ -125,7 +128,7 @@ def _track(clip: EvalClip, frames: list[np.ndarray], settings: TrackerSettings) 
     assert clip.depths is not None and clip.K is not None
     t0 = time.perf_counter()
     with np.errstate(all="ignore"):  # a diverging track overflows; that is a result (failure), not a warning
-        res = track_clip(frames, clip.depths, clip.K, clip.poses, settings)
+        res = track_clip(frames, clip.depths, clip.K, clip.poses, settings, scene)
     out: dict[str, Any] = {
         "applicable": True,
         "brightness": settings.brightness,
@@ -234,6 +237,20 @@ class _ClipContext:
     colmap_settings: ColmapSettings
     tracker_settings: TrackerSettings
     cache: ResultCache | None
+    scene: np.ndarray | None = None  # where the tracker may choose points (None: everywhere)
+
+
+def scene_mask(clip: EvalClip, content: str) -> np.ndarray | None:
+    """Where the clip's frames show the scene, for the tracker (None: every pixel): the area of the mask given as
+    ``content``, else the content area ``colonlight enhance`` finds on the input frames, whatever the methods
+    are shown: a scope's border and on-screen text are not scene to a SLAM system either way."""
+    if content not in ("auto", "full"):
+        area = read_content_mask(Path(content))
+        if area.fov.shape != clip.frames[0].shape[:2]:
+            return None  # another size: every method's clip fails on it before it is tracked
+    else:
+        area = find_content_area(clip.frames, clip.name).area
+    return None if area.is_full else area.mask
 
 
 def _score(
@@ -262,9 +279,10 @@ def _score(
                 r.tracking[mode] = {"applicable": False, "reason": NO_DEPTH_REASON}
                 continue
             settings = replace(ctx.tracker_settings, brightness=mode)
+            scene = [] if ctx.scene is None else [ctx.scene]  # no mask, no change: earlier results stay cached
             r.tracking[mode] = _scored(
-                ctx.cache, "tracker", [*out, *truth], {"settings": asdict(settings)},
-                partial(_track, clip, out, settings),
+                ctx.cache, "tracker", [*out, *truth, *scene], {"settings": asdict(settings)},
+                partial(_track, clip, out, settings, ctx.scene),
             )  # fmt: skip
     if ctx.colmap:  # COLMAP does not depend on the tracker's brightness setting: once per method
         r.colmap = _scored(
@@ -318,7 +336,7 @@ def evaluate_clip(
     by each). ``oracles``: when the clip has clean frames, add the reference rows (clean and the three oracles)
     before the methods and the breakdown of the input's failures. ``cache``: reuse tracking and
     COLMAP results of byte-identical frames (see :mod:`.cache`). ``content``: what the methods see
-    (:mod:`colonlight.content`; ``auto``, as ``colonlight enhance``, or ``full``)."""
+    (:mod:`colonlight.content`; ``auto``, as ``colonlight enhance``, ``full``, or a mask image's path)."""
     modes = _modes(brightness)
     masks = content_masks(clip.frames)
     kind, corrs = _correspondences(clip)
@@ -328,6 +346,7 @@ def evaluate_clip(
     ctx = _ClipContext(
         clip, masks, corrs, [float(x) for x in ssim_in], dark_in, bright_in, modes, colmap, tracker,
         colmap_settings or ColmapSettings(), tracker_settings or TrackerSettings(), cache,
+        scene_mask(clip, content) if tracker and clip.synthetic else None,
     )  # fmt: skip
     record = ClipRecord(
         name=clip.name,
@@ -462,7 +481,7 @@ def evaluate_clips(
             clips, methods, colmap=colmap, tracker=tracker, max_size=max_size, fps=fps, max_frames=max_frames,
             colmap_settings=colmap_settings, tracker_settings=tracker_settings, brightness=_modes(brightness),
             oracles=oracles, strips=strips, threads=threads, progress=progress,
-            cache=ResultCache(cache_dir) if cache_dir is not None else None, content=parse_content_mode(content),
+            cache=ResultCache(cache_dir) if cache_dir is not None else None, content=parse_content(content),
         )  # fmt: skip
 
 
@@ -543,7 +562,7 @@ def _evaluate_clips(
         "tracker": {k: v for k, v in asdict(tracker_settings).items() if k != "brightness"} if tracker else None,
         "brightness": list(brightness) if tracker else [],
         "oracles": oracles,
-        "content": content,
+        "content": content_setting(content),
         "dark_threshold": 0.1,
         "bright_threshold": 0.95,
     }

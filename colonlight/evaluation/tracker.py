@@ -145,6 +145,11 @@ class TrackerSettings:
             raise ValueError(f"TrackerSettings.depth_edge_ratio must be >= 1, got {self.depth_edge_ratio}")
 
 
+#: Keyframe points keep this many pixels (full resolution) from the edge of the ``scene`` mask: the gradient and
+#: the bilinear samples of a point there would reach into the border.
+SCENE_MARGIN = 3
+
+
 @dataclass(frozen=True)
 class TrackResult:
     """What tracking a clip gave; per-frame arrays have one entry per frame (frame 0: the start).
@@ -190,6 +195,7 @@ class _Level:
     grad: np.ndarray  # (h, w) gradient magnitude
     glare: np.ndarray  # (h, w) uint8, 1 at and next to saturated pixels (glints: they move with the light)
     stack: np.ndarray  # (h*w, 3) float32
+    scene: np.ndarray | None = None  # (h, w) bool: where a point may be sampled (None: anywhere in the image)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -233,17 +239,36 @@ def _n_levels(shape: tuple[int, int], s: TrackerSettings) -> int:
     return max(1, min(s.levels, math.floor(math.log2(small / s.min_level_size)) + 1))
 
 
-def _pyramid(frame: np.ndarray, K: np.ndarray, n_levels: int, saturation: float) -> list[_Level]:
-    """Grey image, gradients and glare mask per level; K follows the 2x2 block averaging."""
+def _pyramid(
+    frame: np.ndarray, K: np.ndarray, n_levels: int, saturation: float, scenes: Sequence[np.ndarray | None] = ()
+) -> list[_Level]:
+    """Grey image, gradients and glare mask per level; K follows the 2x2 block averaging. ``scenes``: per level,
+    where samples may be taken (:func:`_scene_pyramid`; none: anywhere)."""
     img = _grey(frame)
     out = []
-    for _ in range(n_levels):
+    for lvl in range(n_levels):
         gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=1, scale=0.5, borderType=cv2.BORDER_REPLICATE)
         gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=1, scale=0.5, borderType=cv2.BORDER_REPLICATE)
         stack = np.stack([img, gx, gy], axis=-1).reshape(-1, 3)
         glare = cv2.dilate((img >= saturation).astype(np.uint8), np.ones((3, 3), np.uint8))
-        out.append(_Level(K, img, np.sqrt(gx * gx + gy * gy), glare, stack))
+        scene = scenes[lvl] if lvl < len(scenes) else None
+        out.append(_Level(K, img, np.sqrt(gx * gx + gy * gy), glare, stack, scene))
         img, K = _half(img), _half_K(K)
+    return out
+
+
+def _scene_pyramid(scene: np.ndarray | None, n_levels: int) -> list[np.ndarray | None]:
+    """Per level, the pixels whose samples read scene only: a sample at (u, v) reads the 2x2 pixels from
+    (floor u, floor v) and their gradients one pixel on, so it needs them all inside; a coarse pixel is scene
+    when its four fine ones are. A point that moves onto the border is out of view, as one that leaves the image."""
+    if scene is None:
+        return [None] * n_levels
+    out: list[np.ndarray | None] = []
+    m = scene
+    for _ in range(n_levels):
+        out.append(cv2.erode(m.astype(np.uint8), np.ones((3, 3), np.uint8), iterations=2, borderValue=1).astype(bool))
+        h, w = m.shape[0] // 2 * 2, m.shape[1] // 2 * 2
+        m = m[:h:2, :w:2] & m[1:h:2, :w:2] & m[:h:2, 1:w:2] & m[1:h:2, 1:w:2]
     return out
 
 
@@ -353,6 +378,9 @@ def _evaluate(
     x, y = Q[:, 0] * iz, Q[:, 1] * iz
     u, v = K[0, 0] * x + K[0, 2], K[1, 1] * y + K[1, 2]
     inside = front & (u >= 1.0) & (u < w - 2.0) & (v >= 1.0) & (v < h - 2.0)
+    if level.scene is not None:  # a sample on a scope's border or text is out of view, as one off the image
+        at = np.flatnonzero(inside)
+        inside[at[~level.scene[np.floor(v[at]).astype(np.intp), np.floor(u[at]).astype(np.intp)]]] = False
     u, v, x, y, iz, ref = u[inside], v[inside], x[inside], y[inside], iz[inside], pts.intensity[inside]
     m = len(ref)
     out_cost = (n - m) * _outlier_cost(s.huber, cutoff)
@@ -554,16 +582,25 @@ def track_clip(
     K: np.ndarray,
     gt_poses: Sequence[np.ndarray] | None = None,
     settings: TrackerSettings = TrackerSettings(),  # frozen, so one shared default is safe
+    scene: np.ndarray | None = None,
 ) -> TrackResult:
     """Track ``frames`` (uint8 (H, W, 3) RGB or (H, W) grey) with known per-frame ``depths`` (z-depth in
     metres, inf/NaN/<= 0 = unknown).
 
     ``K``: 3x3 pinhole intrinsics of the frames, pixel centres at integer coordinates. ``gt_poses``:
     camera-to-world 4x4 (metres, OpenCV axes); when given, the first estimated pose is the first
-    ground-truth one and errors and the success test use them. Inconsistent inputs raise ValueError.
+    ground-truth one and errors and the success test use them. ``scene``: ``(H, W)`` bool, True where the frames
+    show the scene (a scope's content area); keyframe points are chosen only inside it, ``SCENE_MARGIN`` pixels
+    from its edge, as a SLAM system is given its camera's mask: a border and on-screen text do not move with the
+    camera, and the field of view's edge is the strongest gradient in the picture. Inconsistent inputs raise
+    ValueError.
     """
     Km = _validate(frames, depths, K, gt_poses)
     s = settings
+    keep = _scene_points(scene, np.asarray(frames[0]).shape[:2])
+    if keep is not None:
+        depths = [np.where(keep, np.asarray(d, dtype=np.float64), np.inf) for d in depths]
+    scenes = _scene_pyramid(None if keep is None else np.asarray(scene), _n_levels(np.asarray(frames[0]).shape[:2], s))
     n = len(frames)
     gt = [np.asarray(p, dtype=np.float64) for p in gt_poses] if gt_poses is not None else None
     n_lv = _n_levels(np.asarray(frames[0]).shape[:2], s)
@@ -573,12 +610,12 @@ def track_clip(
     converged = np.ones(n, dtype=bool)
     keyframe_of = np.zeros(n, dtype=int)
     lost: dict[int, str] = {}
-    pyr = _pyramid(np.asarray(frames[0]), Km, n_lv, s.saturation)
+    pyr = _pyramid(np.asarray(frames[0]), Km, n_lv, s.saturation, scenes)
     kf = _make_keyframe(0, poses[0], (0.0, 0.0), pyr, np.asarray(depths[0]), s)
     keyframes = [0]
     rel_affine = (0.0, 0.0)
     for j in range(1, n):
-        pyr = _pyramid(np.asarray(frames[j]), Km, n_lv, s.saturation)
+        pyr = _pyramid(np.asarray(frames[j]), Km, n_lv, s.saturation, scenes)
         est, ev, conv = _align(kf.points, pyr, _predict(poses, kf, rel_affine), s)
         frac = ev.n_valid / max(len(kf.points[0].intensity), 1)
         why = _lost_reason(est, ev, frac, kf, s)
@@ -596,6 +633,19 @@ def track_clip(
             keyframes.append(j)
             rel_affine = (0.0, 0.0)
     return _result(poses, affine, residual, converged, valid, keyframe_of, keyframes, lost, gt, s)
+
+
+def _scene_points(scene: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray | None:
+    """Where keyframe points may be chosen: ``scene`` less ``SCENE_MARGIN`` pixels along its edge (None: all)."""
+    if scene is None:
+        return None
+    mask = np.asarray(scene)
+    if mask.shape != shape or mask.dtype != bool:
+        raise ValueError(f"scene must be a bool mask of the frames' shape {shape}, got {mask.dtype} {mask.shape}")
+    if mask.all():
+        return None
+    inner = cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8), iterations=SCENE_MARGIN, borderValue=1)
+    return inner.astype(bool)
 
 
 def _needs_keyframe(j: int, kf: _Keyframe, est: _Estimate, frac: float, s: TrackerSettings) -> bool:

@@ -21,7 +21,7 @@ from typing import Any, BinaryIO
 
 from .. import __version__
 from ..atomic import write_json_atomic
-from ..content import DEFAULT_CONTENT, live_content_stream, parse_content_mode
+from ..content import DEFAULT_CONTENT, content_setting, live_content_stream, parse_content
 from ..errors import ColonlightError, InputError, OptionError
 from ..limits import DEFAULT_FPS, DEFAULT_JPEG_QUALITY
 from ..methods.base import FrameResult, Method
@@ -54,7 +54,7 @@ class StreamOptions:
     reconnect: bool = False
     timeout_s: float = DEFAULT_TIMEOUT_S
     duration_s: float | None = None  # stop after this many seconds
-    content: str = DEFAULT_CONTENT  # auto: the method sees the field of view less fixed text (colonlight.content)
+    content: str = DEFAULT_CONTENT  # auto, full or a mask's path (colonlight.content.parse_content)
 
     def drop_policy(self, spec: SourceSpec) -> str:
         if self.drop != "auto":
@@ -72,7 +72,7 @@ class StreamOptions:
             raise OptionError(
                 f"timeout must be a number of seconds above 0 and at most {MAX_TIMEOUT_S:.0f}, got {self.timeout_s}"
             )
-        parse_content_mode(self.content)
+        parse_content(self.content)
 
 
 @dataclass(frozen=True)
@@ -305,13 +305,14 @@ class LiveStream:
 
     def record(self) -> dict[str, Any]:
         """``stream.json``: the source, the settings and the summary."""
+        options = {**asdict(self.opts), "content": content_setting(self.opts.content), "drop": self.handoff.policy}
         return {
             "source": self.spec.text,
             "kind": self.spec.kind,
             "method": self.method.name,
             "model": self.method.model_info(),
             "parameters": self.method.parameters(),
-            "options": {**asdict(self.opts), "drop": self.handoff.policy},
+            "options": options,
             "colonlight_version": __version__,
             "versions": library_versions(),
             "summary": asdict(self.summary),

@@ -106,3 +106,40 @@ def test_a_given_area_is_used_for_every_frame_of_its_size_only() -> None:
         stream.push(np.zeros((8, 9, 3), np.uint8))
     with pytest.raises(OptionError):
         ContentStream(create_method("none").stream(), area=area, resize="redetect")
+
+
+def test_enhance_given_the_mask_writes_what_it_writes_finding_the_area(clip: Path, tmp_path: Path) -> None:
+    """`enhance --content MASK` with the mask `content` wrote: the same frames and gammas as `--content auto`
+    (which finds that area), the mask recorded with its hash; the same command resumes, an edited mask redoes
+    the clip, and a mask of another size fails each clip in one line while the batch goes on."""
+    mask = tmp_path / "scope.pgm"
+    assert runner.invoke(app, ["content", str(clip), "-o", str(mask)]).exit_code == 0
+    for name, content in (("auto", "auto"), ("mask", str(mask))):
+        done = runner.invoke(app, ["enhance", str(clip), "-o", str(tmp_path / name), "--content", content, "-q"])
+        assert done.exit_code == 0, done.output
+    auto, given = (json.loads(next((tmp_path / n).rglob("gammas.json")).read_text()) for n in ("auto", "mask"))
+    assert [f for f in auto["frames"]] == [f for f in given["frames"]]  # gammas, curves and the area's record
+    for frame in (tmp_path / "auto").rglob("*.png"):
+        assert frame.read_bytes() == (tmp_path / "mask" / frame.relative_to(tmp_path / "auto")).read_bytes()
+    digest = given["settings"]["content"]["sha256"]
+    assert given["settings"]["content"] == {"mask": str(mask), "sha256": digest} and len(digest) == 64
+    again = runner.invoke(app, ["enhance", str(clip), "-o", str(tmp_path / "mask"), "--content", str(mask)])
+    assert again.exit_code == 0 and "skipped clip (complete)" in again.output, again.output
+    edited = bytearray(mask.read_bytes())
+    edited[edited.index(SCENE)] = 0  # one scene pixel less (the header is ASCII): another mask
+    mask.write_bytes(bytes(edited))
+    redone = runner.invoke(app, ["enhance", str(clip), "-o", str(tmp_path / "mask"), "--content", str(mask)])
+    assert redone.exit_code == 0 and "done    clip" in redone.output, redone.output
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), np.full((50, 40), SCENE, np.uint8))
+    batch = tmp_path / "batch"
+    batch.mkdir()
+    for name in ("a.mp4", "b.mp4"):
+        (batch / name).write_bytes(clip.read_bytes())
+    wrong = runner.invoke(app, ["enhance", str(batch), "-o", str(tmp_path / "wrong"), "--content", str(small)])
+    assert wrong.exit_code == 1
+    for name in ("a.mp4", "b.mp4"):
+        assert f"{name}: frame is 192x144, the content mask {small} is 40x50" in wrong.output, wrong.output
+    unusable = runner.invoke(app, ["enhance", str(clip), "-o", str(tmp_path / "none"), "--content", str(batch)])
+    assert unusable.exit_code == 2 and "content must be" in unusable.output, unusable.output
+    assert not (tmp_path / "none").exists()

@@ -495,8 +495,10 @@ def test_a_bordered_stream_is_enhanced_inside_its_field_of_view(tmp_path: Path) 
         check=True,
         timeout=60,
     )
-    for content in ("auto", "full"):
-        out = tmp_path / content
+    mask = tmp_path / "disc.pgm"  # the same field of view, given: `colonlight content`'s format
+    mask.write_bytes(f"P5\n{w} {h}\n255\n".encode() + (disc * 255).astype(np.uint8).tobytes())
+    for content in ("auto", "full", str(mask)):
+        out = tmp_path / Path(content).stem
         proc = subprocess.run(
             _colonlight(str(clip), "-o", str(out), "-q", "--fps", "0", "--format", "png", "--content", content)
             + ["--method", "gamma", "--gamma", "0.5"],
@@ -507,9 +509,13 @@ def test_a_bordered_stream_is_enhanced_inside_its_field_of_view(tmp_path: Path) 
         assert proc.returncode == 0, proc.stderr.decode()
         records = _log(out)
         assert len(records) == n and _summary(out)["frames_dropped"] == 0
-        assert json.loads((out / "stream.json").read_text())["options"]["content"] == content
+        recorded = json.loads((out / "stream.json").read_text())["options"]["content"]
+        assert recorded == content if content != str(mask) else recorded["mask"] == content, recorded
         frames = [cv2.imread(str(p)) for p in sorted((out / "frames").glob("*.png"))]
-        if content == "auto":
+        if content == str(mask):  # the area given, used from the first frame
+            assert records[0]["content"]["fov_fraction"] == round(float(disc.mean()), 4), records[0]
+            assert all(not f[disc == 0].any() for f in frames) and len(recorded["sha256"]) == 64
+        elif content == "auto":
             assert 0.4 < records[0]["content"]["fov_fraction"] < 0.9, records[0]
             assert all("content" not in r for r in records[1:])
             assert all(not f[disc == 0].any() for f in frames)  # the border is written unchanged

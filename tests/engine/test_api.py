@@ -68,6 +68,7 @@ def test_all_is_sorted_and_pinned() -> None:
         "network_threads",
         "onnx_sidecar_path",
         "output_lock",
+        "parse_content",
         "parse_content_mode",
         "parse_frame_steps",
         "parse_json",

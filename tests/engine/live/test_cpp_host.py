@@ -231,8 +231,8 @@ def test_the_cpp_host_given_a_content_mask_writes_what_enhance_writes(
     """A clip behind a round border with on-screen text: given the mask `colonlight content` writes, the host shows
     the step the content area as `colonlight enhance --content auto` does, so its corrections are colonlight's and
     every border and text pixel is written as it came in; without the mask the border moves its corrections."""
-    from colonlight.content import content_stream
-    from colonlight.content_mask import find_content_area, write_content_mask
+    from colonlight.content import content_stream, find_content_area
+    from colonlight.content_mask import write_content_mask
     from colonlight.synth.overlay import OverlaySpec
 
     spec = OverlaySpec(border="round", fov=0.9, text=True)

@@ -273,7 +273,7 @@ def test_area_changes_only_after_agreeing_blocks(scene: np.ndarray) -> None:
 def test_bad_content_option_is_refused(tmp_path: Path) -> None:
     result = runner.invoke(app, ["enhance", str(tmp_path), "--content", "border"])
     assert result.exit_code == 2 and "content" in result.output
-    with pytest.raises(ValueError, match="content must be one of auto, full"):
+    with pytest.raises(ValueError, match="content must be auto, full or a mask image: border: cannot read"):
         ClipOptions(content="border")
 
 
