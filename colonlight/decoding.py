@@ -321,8 +321,14 @@ def _frames(
         try:
             packet = next(packets, None)
         except (av.error.FFmpegError, OSError, ValueError) as exc:
-            cause = f"corrupt or truncated video: reading failed after {report.source_frames} frames ({_cause(exc)})"
-            raise _error(path, cause) from exc
+            if report.source_frames == 0:
+                cause = f"corrupt or truncated video: reading failed before its first frame ({_cause(exc)})"
+                raise _error(path, cause) from exc
+            # ffmpeg says "Error during demuxing" and ends the input there, keeping what it decoded (a frame size
+            # field damaged in an IVF, a y4m FRAME marker): the frames so far are the clip, marked truncated
+            report.truncated = f"reading stopped after {report.packets} packets ({_cause(exc)})"
+            yield from _drained(path, stream, report)
+            return
         if packet is None:
             return
         report.damaged += bool(packet.is_corrupt)
@@ -343,6 +349,19 @@ def _frames(
             report.source_frames += 1
             report.damaged += bool(frame.is_corrupt)
             yield frame
+
+
+def _drained(path: Path, stream: Any, report: DecodeReport) -> Iterator[Any]:
+    """The frames the decoder still holds once reading has stopped early (what ffmpeg flushes at its input's end)."""
+    try:
+        frames = stream.codec_context.decode(None)
+    except av.error.FFmpegError as exc:  # nothing more to take from a decoder that fails on the flush
+        log.debug("%s: flushing the decoder failed: %s", path, exc)
+        return
+    for frame in frames:
+        report.source_frames += 1
+        report.damaged += bool(frame.is_corrupt)
+        yield frame
 
 
 def probe_frame_size(path: Path, max_pixels: int | None = None) -> tuple[int, int]:
@@ -434,7 +453,7 @@ def iter_video_frames(
         selector = FpsSelector(fps, stream.time_base) if fps else None
         gap_cap = max_gap_frames_setting() if max_gap_frames is None else int(max_gap_frames)
         yield from _decode(path, container, stream, selector, min_frames, report, cap, gap_cap)
-        report.truncated = truncation_reason(path, container.format.name)
+        report.truncated = truncation_reason(path, container.format.name) or report.truncated
         for line in report.warnings if warn else ():
             log.warning("%s: %s", path, line)
 

@@ -205,3 +205,40 @@ def test_an_mp4_cut_inside_its_index_fails_saying_so(tmp_path: Path, faststart: 
         assert entries[name]["status"] == "failed" and not (out / name).exists(), entries[name]
         line = next(line for line in failed if f"{videos / name}.mp4:" in line)
         assert f"truncated MP4/MOV: the file ends at byte {at}, inside its index" in line, line
+
+
+def _ivf_frame_offsets(data: bytes) -> list[int]:
+    """Where each frame header (4-byte size, 8-byte pts) of an IVF file starts, after its 32-byte file header."""
+    offsets, at = [], 32
+    while at + 12 <= len(data):
+        offsets.append(at)
+        at += 12 + struct.unpack_from("<I", data, at)[0]
+    return offsets
+
+
+@pytest.mark.parametrize("container", ["ivf", "y4m"])
+def test_reading_that_stops_mid_file_keeps_the_frames_read_as_ffmpeg_does(tmp_path: Path, container: str) -> None:
+    """A damaged IVF frame size (a 4 GB frame) or y4m FRAME marker stops FFmpeg's demuxer part way. ``ffmpeg``
+    says "Error during demuxing", ends the input there and writes the frames it has (exit status 0); colonlight
+    failed the clip ("reading failed after 23 frames (Cannot allocate memory)"). Now it is done with those frames
+    (the decoder's last ones included), marked truncated, with the cause in one warning line."""
+    if container == "ivf" and "libvpx" not in encoders():
+        pytest.skip("the ffmpeg binary has no libvpx encoder")
+    codec = ["-c:v", "libvpx", "-b:v", "500k"] if container == "ivf" else ["-pix_fmt", "yuv420p"]
+    good = make_clip(tmp_path / f"good.{container}", n_frames=36, fps=18, codec_args=codec)
+    data = bytearray(good.read_bytes())
+    if container == "ivf":
+        struct.pack_into("<I", data, _ivf_frame_offsets(bytes(data))[25], 0xFFFFFFF0)
+    else:
+        at = [i for i in range(len(data)) if data[i : i + 6] == b"FRAME\n"][20]
+        data[at : at + 5] = b"XXXXX"
+    bad = tmp_path / "in" / f"bad.{container}"
+    bad.parent.mkdir()
+    bad.write_bytes(bytes(data))
+    want = ffmpeg_fps_indices(bad, 18)
+    assert 0 < len(want) < 36  # ffmpeg stops part way, keeping what it read
+    code, out = enhance(str(bad.parent), "-o", str(tmp_path / "out"))
+    assert code == 0 and "truncated: reading stopped after" in out and "Traceback" not in out, out
+    assert [read_index(f) for f in frames_of(tmp_path / "out", "bad")] == want
+    entry = manifest(tmp_path / "out")["bad"]
+    assert entry["status"] == "done" and entry.get("truncated") is True, entry
