@@ -44,6 +44,9 @@ def parse(argv: list[str]) -> list[tuple[str, list[str]]]:
 
 
 def main(argv: list[str]) -> None:
+    if argv[:1] in (["-h"], ["--help"]):
+        print((__doc__ or "").strip())
+        return
     for name, options in parse(argv):
         try:
             module = importlib.import_module(BENCHMARKS[name])

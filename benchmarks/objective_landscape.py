@@ -20,6 +20,7 @@ Run: ``python -m benchmarks objective_landscape`` (about 5 minutes on 2 cores).
 
 from __future__ import annotations
 
+import argparse
 import sys
 
 import cv2
@@ -98,6 +99,8 @@ def losses(images: torch.Tensor, clean: torch.Tensor) -> dict[str, float]:
 
 
 def main(argv: list[str] | None = None) -> str:
+    # no options: --help says what it measures, anything else is refused (it was ignored, and the run started)
+    argparse.ArgumentParser(prog="python -m benchmarks objective_landscape", description=__doc__).parse_args(argv or [])
     torch.set_num_threads(1)
     rows = []
     lo, hi = PARAM_SPECS["speed_mm_s"].train

@@ -36,7 +36,7 @@ def export(
     ),
     debug: bool = options.Debug,
 ) -> None:
-    """Write the step graph (frame, h, c -> a, h_out, c_out) for ONNX Runtime hosts, checked against torch."""
+    """Write the network's step for ONNX Runtime hosts (frame and state in, output and state out), and its sidecar."""
     with ends_command(FAILED, debug):
         from colonlight import OutputError, export_onnx, load_weights, onnx_sidecar_path, parse_model_size
 

@@ -11,7 +11,7 @@ from contextlib import contextmanager
 
 import typer
 
-from colonlight import ColonlightError
+from colonlight import ColonlightError, OptionError
 
 from .display import error_line
 
@@ -25,12 +25,13 @@ USAGE = 2
 def ends_command(
     code: int, debug: bool = False, kinds: tuple[type[Exception], ...] = (ColonlightError,)
 ) -> Iterator[None]:
-    """An error of ``kinds`` raised in the block ends the command: its message as one line, exit status ``code``;
-    with ``debug``, the error itself, traceback and all."""
+    """An error of ``kinds`` raised in the block ends the command: its message as one line, exit status ``code``
+    (``USAGE`` for an ``OptionError``: a value the user gave, wherever it was found bad, such as an environment
+    variable read only when needed); with ``debug``, the error itself, traceback and all."""
     try:
         yield
     except kinds as exc:
         if debug:
             raise
         error_line(str(exc))
-        raise typer.Exit(code) from None
+        raise typer.Exit(USAGE if isinstance(exc, OptionError) else code) from None

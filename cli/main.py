@@ -11,10 +11,11 @@ import sys
 
 import typer
 
-from colonlight import ColonlightError, __version__
+from colonlight import ColonlightError, OptionError, __version__
 
 from . import content, demo, enhance, evaluate, export, info, stream, synth, train
 from .display import FlagsWithoutType, error_line
+from .failures import FAILED, USAGE
 from .interrupts import INTERRUPTED
 
 app = typer.Typer(
@@ -61,7 +62,7 @@ def run() -> None:
         if debug:
             raise
         error_line(str(exc))
-        sys.exit(1)
+        sys.exit(USAGE if isinstance(exc, OptionError) else FAILED)  # a bad value the user gave is a usage error
     except KeyboardInterrupt:
         error_line(INTERRUPTED)
         sys.exit(130)

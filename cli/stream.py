@@ -247,7 +247,8 @@ def stream(
         _quiet_stdout()
     if summary.error:
         error_line(summary.error)
-    if summary.connections and (not quiet or summary.error):  # a source never opened: its error line is all
+    # a source never opened: its error line is all; stopped while waiting for one: the summary says so
+    if (summary.connections or (summary.end and not summary.error)) and (not quiet or summary.error):
         _summary(summary)
     if output is not None and summary.frames_out:
         console.print(f"outputs: {output}")

@@ -50,7 +50,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any, TypedDict
 
 from . import __version__
-from .errors import ColonlightError
+from .errors import ColonlightError, MissingExtraError, OptionError
 from .extras import install_command
 from .jobs import ClipJob, ClipOutcome, MethodSpec, ProgressFn, method_for, run_clip
 from .pipeline import ClipOptions
@@ -86,7 +86,7 @@ def cluster_timeout() -> float:
     except ValueError:
         value = math.nan
     if not 0 <= value <= MAX_CLUSTER_TIMEOUT:  # NaN fails this too
-        raise ColonlightError(
+        raise OptionError(
             f"COLONLIGHT_CLUSTER_TIMEOUT must be a number of seconds from 0 to {MAX_CLUSTER_TIMEOUT:g}, got {raw!r}"
         )
     return max(0.5, value)
@@ -212,7 +212,7 @@ def absolute_job(job: ClipJob) -> ClipJob:
     source, out_dir = Path(job.source), Path(job.out_dir)
     if source.is_absolute() and out_dir.is_absolute():
         return job
-    return dataclasses.replace(job, source=source.absolute(), out_dir=out_dir.absolute())
+    return dataclasses.replace(job, source=source.absolute(), out_dir=out_dir.absolute(), shown=job.label)
 
 
 def absolute_spec(spec: MethodSpec) -> MethodSpec:
@@ -242,7 +242,7 @@ class ClusterRunner:
         try:
             from distributed import Client
         except ImportError:
-            raise ColonlightError(
+            raise MissingExtraError(
                 f"running on a cluster needs Dask distributed: {install_command('cluster')}"
             ) from None
         self.address = address

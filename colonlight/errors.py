@@ -7,7 +7,8 @@ Hierarchy::
     │   └── FrameTooLargeError   its frames exceed the pixel cap (known from the header, before decoding)
     │   └── FrameShapeError      a frame a method cannot take (not HxWx3 uint8, a size that changed mid-stream)
     ├── OptionError              a bad option value: a method's (unknown name, out of range), a clip's, a stream's
-    │   └── MethodOptionError    a declared method option (colonlight.methods.options) out of range or not applicable
+    │   ├── MethodOptionError    a declared method option (colonlight.methods.options) out of range or not applicable
+    │   └── MissingExtraError    a command or option whose optional extra is not installed (usage: exit status 2)
     ├── CheckpointError          a weights file that is missing, corrupt, truncated or of an unknown format
     └── DeviceError              a requested device (e.g. ``cuda:1``) that this machine does not have
 
@@ -49,6 +50,12 @@ class FrameShapeError(InputError, ValueError):
 
 class OptionError(ColonlightError, ValueError):
     """An option value that cannot be used (a method, clip or stream option): the message names it and the range."""
+
+
+class MissingExtraError(OptionError):
+    """A command or option whose optional extra is not installed (``--cluster``, ``export``, ``evaluate``,
+    ``--runtime onnxruntime``): found before any work, so the shells treat it as a usage error (exit status 2);
+    the message names the packages and the command that installs them (:mod:`colonlight.extras`)."""
 
 
 class MethodOptionError(OptionError):

@@ -41,6 +41,14 @@ class ClipJob:
     name: str  # relative output path, POSIX separators
     out_dir: Path
     problem: str | None = None
+    #: The source as the user named it, what the records say (None: ``source``): a cluster sends the job with an
+    #: absolute ``source``, and its outputs must read as a local run's.
+    shown: str | None = None
+
+    @property
+    def label(self) -> str:
+        """The source as records and outcomes name it."""
+        return self.shown if self.shown is not None else str(self.source)
 
 
 @dataclass
@@ -161,9 +169,7 @@ def run_clip(
     t0 = time.perf_counter()
 
     def failed(error: str, detail: str | None = None) -> ClipOutcome:
-        return ClipOutcome(
-            job.name, str(job.source), "failed", seconds=time.perf_counter() - t0, error=error, detail=detail
-        )
+        return ClipOutcome(job.name, job.label, "failed", seconds=time.perf_counter() - t0, error=error, detail=detail)
 
     def frame_done(n: int) -> None:
         if on_frame is not None:
@@ -180,7 +186,7 @@ def run_clip(
         if record is not None:
             return ClipOutcome(
                 job.name,
-                str(job.source),
+                job.label,
                 "done",
                 frames=record.get("frame_count", 0),
                 skipped=True,
@@ -197,10 +203,11 @@ def run_clip(
             opts,
             clip_name=job.name,
             on_frame=frame_done if progress or on_frame else None,
+            source_name=job.shown,
         )
         return ClipOutcome(
             job.name,
-            str(job.source),
+            job.label,
             "done",
             frames=result.frames,
             seconds=result.seconds,

@@ -24,7 +24,7 @@ import torch
 from torch import Tensor, nn
 
 from .checkpoint import LoadedWeights
-from .errors import ColonlightError
+from .errors import ColonlightError, MissingExtraError
 from .extras import install_command
 
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -185,7 +185,7 @@ def export_model_bytes(weights: LoadedWeights, size: int) -> tuple[bytes, StepSi
         import onnx  # noqa: F401 - torch's exporter needs it
         import onnxscript  # noqa: F401
     except ImportError as exc:
-        raise ExportError(f"ONNX export needs the export extra: {install_command('export')} ({exc})") from None
+        raise MissingExtraError(f"ONNX export needs the export extra: {install_command('export')} ({exc})") from None
     sig, described = step_signature(weights, size)
     graph = StepGraph(weights.net.cpu().eval()).eval()
     example = (torch.zeros(sig.frame_shape), *(torch.zeros(s) for s in sig.state_shapes))

@@ -304,8 +304,12 @@ def enhance_clip(
     *,
     clip_name: str | None = None,
     on_frame: Callable[[int], None] | None = None,
+    source_name: str | None = None,
 ) -> ClipResult:
     """Enhance one clip (a video file or a folder of frames) into ``out_dir``; ``gammas.json`` is written last.
+
+    ``source_name``: the source as ``gammas.json`` records it (default: ``source``), so that a clip a cluster
+    worker reads from its absolute path records the path as the user gave it, as a local run does.
 
     Raises :class:`InputError` (one line naming the file and the cause) for unusable input. A clip that fails,
     at its first frame or part way (a frame size change, a write error, a bug), leaves nothing half-written: the
@@ -319,7 +323,9 @@ def enhance_clip(
         created.append(folder)
         folder = folder.parent
     try:
-        return _enhance_clip(source, out_dir, method, opts, clip_name=clip_name, on_frame=on_frame)
+        return _enhance_clip(
+            source, out_dir, method, opts, clip_name=clip_name, on_frame=on_frame, source_name=source_name
+        )
     except Exception:
         discard_partial_outputs(Path(out_dir))
         if created:
@@ -378,6 +384,7 @@ def _enhance_clip(
     *,
     clip_name: str | None,
     on_frame: Callable[[int], None] | None,
+    source_name: str | None = None,
 ) -> ClipResult:
     t0 = time.perf_counter()
     opts = ClipOptions() if opts is None else opts
@@ -447,7 +454,10 @@ def _enhance_clip(
         yield from decoded
 
     try:
-        camera = clip_camera(opts.camera, first_size)  # a camera file for another size fails here, before any write
+        try:  # a camera file for another size fails here, before any write
+            camera = clip_camera(opts.camera, first_size)
+        except InputError as exc:  # the camera's line names the camera file: name the clip too, as every line does
+            raise InputError(f"{source}: {exc}") from None
         for f in chain():
             if f.image.shape[:2] != first_size:
                 raise InputError(
@@ -473,7 +483,7 @@ def _enhance_clip(
     settings = settings_record(method, opts)
     gammas: dict[str, Any] = {
         "clip": clip_name,
-        "source": str(source),
+        "source": source_name or str(source),
         "fps": fps_out,
         "method": method.name,
         "model": method.model_info(),

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import importlib.util
 
-from ..errors import ColonlightError
+from ..errors import MissingExtraError
 from ..extras import install_command
 
 #: import name -> distribution, for what every evaluation needs and what COLMAP and the trajectory errors add
@@ -27,7 +27,7 @@ def require_extras(colmap: bool = True) -> None:
     """:class:`ColonlightError` (one line) naming what to install when part of the ``eval`` extra is missing."""
     missing = missing_extras(colmap)
     if missing:
-        raise ColonlightError(
+        raise MissingExtraError(
             f"colonlight evaluate needs {', '.join(missing)}: {install_command('eval')}"
             + (" (or run with --no-colmap)" if set(COLMAP_NEEDED.values()) & set(missing) else "")
         )

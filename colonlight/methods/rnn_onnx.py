@@ -21,7 +21,7 @@ import torch
 from .. import __version__
 from ..atomic import write_bytes_atomic
 from ..checkpoint import LoadedWeights
-from ..errors import OptionError
+from ..errors import MissingExtraError, OptionError
 from ..extras import install_command
 from ..onnx_step import ExportError, StepSignature, compare_with_torch, cpu_session, export_model_bytes, step_signature
 
@@ -103,5 +103,5 @@ def make_step(weights: LoadedWeights, size: int | None, device: torch.device, ru
     try:
         import onnxruntime  # noqa: F401
     except ImportError:
-        raise OptionError(f"--runtime onnxruntime needs the export extra: {install_command('export')}") from None
+        raise MissingExtraError(f"--runtime onnxruntime needs the export extra: {install_command('export')}") from None
     return OnnxStep(weights, size)

@@ -100,17 +100,18 @@ def test_a_scheduler_address_that_does_not_answer_as_dask_is_one_line(
     assert not (tmp_path / "out" / "manifest.json").exists()
 
 
-@pytest.mark.parametrize("value", ["inf", "nan"])
+@pytest.mark.parametrize("value", ["inf", "nan", "abc"])
 def test_a_cluster_timeout_that_is_no_number_of_seconds_is_one_line(tmp_path: Path, value: str) -> None:
     """``inf`` (or ``1e300``) overflowed Dask's deadlines, so that every scheduler, even a live one, was
-    "unreachable (timestamp out of range for platform time_t)"; ``nan`` and negative values became 0.5 s silently."""
+    "unreachable (timestamp out of range for platform time_t)"; ``nan`` and negative values became 0.5 s silently.
+    A usage error (exit status 2), as a bad COLONLIGHT_FPS or COLONLIGHT_MAX_GAP_FRAMES is (it was 1)."""
     pytest.importorskip("distributed")
     make_image_folder(tmp_path / "seq", n=3)
     code, output = colonlight(
         "enhance", str(tmp_path / "seq"), "-o", str(tmp_path / "out"), "--cluster", "tcp://127.0.0.1:1", *NONE,
         env={"COLONLIGHT_CLUSTER_TIMEOUT": value},
     )  # fmt: skip
-    assert code == 1, output
+    assert code == 2, output
     assert (
         output.strip()
         == f"error: COLONLIGHT_CLUSTER_TIMEOUT must be a number of seconds from 0 to 86400, got {value!r}"

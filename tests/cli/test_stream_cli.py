@@ -247,6 +247,23 @@ def _rtsp_listener(url: str, out: Path, weights: Path, *extra: str) -> tuple[sub
     return proc, err
 
 
+def test_stopped_while_waiting_for_a_publisher_says_so(tmp_path: Path, random_weights: Path) -> None:
+    """SIGTERM before any publisher connected ended the stream with exit 0 and not a word; the summary (no
+    frames, no connection) and its "ended:" line go to stderr as for any other stopped stream."""
+    port = free_port(ports=PORTS)
+    out, url = tmp_path / "out", f"rtsp://127.0.0.1:{port}/live"
+    proc, err = _rtsp_listener(url, out, random_weights, "--reconnect", "--timeout", "60")
+    try:
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(45) == 0, err.done()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = err.done()
+    assert "ended: stopped (SIGTERM)" in text and "0 connection(s)" in text and "Traceback" not in text, text
+
+
 def test_rtsp_stream_published_by_ffmpeg(
     tmp_path: Path, live_clip: Path, fps_choice: list[int], random_weights: Path
 ) -> None:

@@ -242,6 +242,29 @@ def test_batch_on_cluster_is_byte_identical_to_local(
     assert output_bytes(out) == local_run
 
 
+def test_relative_paths_are_recorded_as_given_on_the_cluster_too(
+    cluster: LoopbackCluster, videos: Path, weights: Path, tmp_path: Path
+) -> None:
+    """The clips go to the workers with absolute paths (a worker's working folder is not ours), but the records
+    name the source as the user gave it, as a local run does: `gammas.json` held "/abs/cwd/../videos/..." there
+    against "../videos/..." locally (found by running the README as a new user)."""
+    cluster.ensure_workers(2)
+    cwd = tmp_path / "work"
+    cwd.mkdir()
+    rel = os.path.relpath(videos / "site0", cwd)
+    outs = {}
+    for name, extra in (("local", []), ("cluster", ["--cluster", cluster.address])):
+        proc = subprocess.run(
+            [*COLONLIGHT, "enhance", rel, "-o", name, "--weights", str(weights), "--quiet", *extra],
+            cwd=cwd, capture_output=True, text=True, timeout=120, check=False,
+        )  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+        outs[name] = output_bytes(cwd / name)
+    assert outs["cluster"] == outs["local"]
+    manifest = json.loads(outs["local"]["manifest.json"])
+    assert {c["source"] for c in manifest["clips"]} == {f"{rel}/clip0.mp4", f"{rel}/clip2.mp4"}
+
+
 def _executing(cluster: LoopbackCluster, address: str) -> list[str]:
     """Clip names of the tasks a worker is executing now (task keys end with the clip name)."""
 

@@ -145,6 +145,8 @@ def test_camera_for_another_size_fails_that_clip_before_anything_is_written(
     )
     assert code == 1
     assert "calibrated for 128x96 images, but this clip's frames are 160x120" in out and "Traceback" not in out
+    (line,) = [ln for ln in out.splitlines() if "calibrated for" in ln]
+    assert "big" in line.split("calibrated for")[0], line  # the clip is named, not only the camera file
     assert not (tmp_path / "o" / "big" / "frames").exists() and not (tmp_path / "o" / "big" / "gammas.json").exists()
     assert (tmp_path / "o" / "small" / "camera.txt").read_text() == DSO_PINHOLE  # the other clip completes
 
