@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import sys
 from pathlib import Path
 
 import typer
@@ -33,21 +34,22 @@ def content(
     from colonlight import (
         OptionError,
         OutputError,
+        check_mask_output,
         clip_frames,
-        content_mask_format,
         find_content_area,
         write_content_mask,
     )
 
     try:
-        content_mask_format(output)
+        check_mask_output(output, clip)
     except OptionError as exc:  # before the clip is read
         raise typer.BadParameter(str(exc), param_hint="--output") from None
     if not math.isfinite(seconds):
         raise typer.BadParameter(f"must be a number of seconds, got {seconds}", param_hint="--seconds")
     with ends_command(FAILED, debug):
         frames = (f.image for f in clip_frames(clip, fps=DEFAULT_FPS))
-        limit = max(1, math.ceil(seconds * DEFAULT_FPS)) if seconds > 0 else None
+        # capped: 1e300 seconds is as many frames as the clip has, not an overflow
+        limit = max(1, math.ceil(min(seconds * DEFAULT_FPS, sys.maxsize))) if seconds > 0 else None
         found = find_content_area(itertools.islice(frames, limit), clip)
         try:
             write_content_mask(output, found.area)

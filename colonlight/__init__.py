@@ -36,8 +36,8 @@ _EXPORTS: dict[str, str] = {
     "DEFAULT_CONTENT": "content",
     "ContentMode": "content",
     "content_stream": "content",
-    "content_mask_format": "content_mask",
     "find_content_area": "content",
+    "check_mask_output": "content_mask",
     "read_content_mask": "content_mask",
     "write_content_mask": "content_mask",
     "live_content_stream": "content",
@@ -117,7 +117,7 @@ if TYPE_CHECKING:
         parse_content,
         parse_content_mode,
     )
-    from .content_mask import content_mask_format, read_content_mask, write_content_mask
+    from .content_mask import check_mask_output, read_content_mask, write_content_mask
     from .curves import apply_gamma, apply_lut, gamma_lut
     from .device import resolve_device
     from .discovery import VIDEO_SUFFIXES, PathProblem, discover, discover_clips, synthetic_folder_of
@@ -190,8 +190,8 @@ __all__ = [
     "apply_lut",
     "atomic_path",
     "available_methods",
+    "check_mask_output",
     "clip_frames",
-    "content_mask_format",
     "content_stream",
     "create_method",
     "default_workers",

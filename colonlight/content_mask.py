@@ -1,5 +1,5 @@
 """A scope's content area as a mask image: what a host that cannot run the detection (a C++ SLAM front end) is
-given instead, and how colonlight finds one for a clip.
+given instead (:func:`colonlight.content.find_content_area` finds one on a clip), and ``--content MASK``.
 
 The image has the frame's size, one 8-bit channel: ``SCENE`` (255) where the scene shows, ``BORDER`` (0) outside
 the field of view, and any level between (``OVERLAY``, 128, when colonlight writes it) for fixed on-screen text
@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import stat
 from pathlib import Path
 
@@ -23,11 +24,18 @@ import numpy as np
 from .atomic import NOT_REGULAR_FILE, atomic_path
 from .content_area import ContentArea
 from .errors import InputError, OptionError
-from .frames import check_image_size, read_image
+from .frames import IMAGE_SUFFIXES, check_image_size, read_image
 
 SCENE, OVERLAY, BORDER = 255, 128, 0
 #: The names a mask is written under: PGM (what the C++ host reads) or PNG.
 MASK_SUFFIXES = (".pgm", ".png")
+#: A binary PGM's header (Netpbm): fields apart by whitespace or ``#`` comments, one whitespace byte before the
+#: raster. Bytes enough to hold one with comments; a longer one is taken as damaged.
+_GAP = rb"(?:\s|#[^\r\n]*[\r\n])+"
+_PGM_HEADER = re.compile(rb"P5" + _GAP + rb"(\d+)" + _GAP + rb"(\d+)" + _GAP + rb"(\d+)\s")
+_HEADER_BYTES = 65536
+#: JPEG's (and MPO's) first bytes: a lossy image, whose levels beside an edge are neither 0 nor 255.
+_JPEG_MAGIC = b"\xff\xd8\xff"
 
 
 def area_image(area: ContentArea) -> np.ndarray:
@@ -55,14 +63,32 @@ def pgm_bytes(image: np.ndarray) -> bytes:
     return f"P5\n{width} {height}\n255\n".encode("ascii") + np.ascontiguousarray(image).tobytes()
 
 
-def content_mask_format(path: Path) -> str:
-    """``"pgm"`` or ``"png"``, the format a mask named ``path`` is written in; OptionError for any other name (a
-    shell checks it before the clip is read)."""
+def check_mask_output(path: Path, clip: Path | None = None) -> str:
+    """``"pgm"`` or ``"png"``, the format a mask named ``path`` is written in; OptionError for any other name, and
+    for a name that would change ``clip`` (the clip the mask is found on): the clip file itself (a video may be
+    named ``.png``), or an image name in a frame-folder clip (read as one of its frames). A shell checks it
+    before the clip is read."""
     suffix = Path(path).suffix.lower()
     if suffix not in MASK_SUFFIXES:
         wanted = " or ".join(MASK_SUFFIXES)
         raise OptionError(f"{path}: a content mask is written as {wanted}, not {suffix or 'a name without one'}")
+    clash = _clip_clash(Path(clip), Path(path)) if clip is not None else None
+    if clash:
+        raise OptionError(f"{path}: {clash}")
     return suffix[1:]
+
+
+def _clip_clash(clip: Path, output: Path) -> str | None:
+    """Why writing ``output`` would change ``clip``, links resolved (None if it would not)."""
+    try:
+        if output.exists() and output.samefile(clip):
+            return "is the clip itself: the mask would overwrite it"
+        folder = output.absolute().parent.resolve()  # the folder the name lands in, whatever a link there points to
+        if clip.is_dir() and output.suffix.lower() in IMAGE_SUFFIXES and folder == clip.resolve():
+            return f"is in the clip's frame folder {clip}: the mask would be read as one of its frames"
+    except (OSError, RuntimeError):  # unresolvable (a link loop: RuntimeError): the clip or the output says so
+        pass
+    return None
 
 
 def write_content_mask(path: Path, area: ContentArea) -> None:
@@ -70,7 +96,7 @@ def write_content_mask(path: Path, area: ContentArea) -> None:
     for a ``.png`` name. OptionError for any other name, before anything is written; ``OSError`` if it cannot be
     written."""
     image = area_image(area)
-    data = cv2.imencode(".png", image)[1].tobytes() if content_mask_format(path) == "png" else pgm_bytes(image)
+    data = cv2.imencode(".png", image)[1].tobytes() if check_mask_output(path) == "png" else pgm_bytes(image)
     with atomic_path(Path(path)) as tmp:
         tmp.write_bytes(data)
 
@@ -81,16 +107,45 @@ def mask_digest(path: Path) -> str:
         return hashlib.file_digest(f, "sha256").hexdigest()
 
 
+def _check_mask_file(path: Path, size: int) -> None:
+    """InputError naming ``path`` for a mask that would be read with wrong levels or in the wrong place: a JPEG
+    (lossy: scene pixels that are not quite 255 would count as text, border ones not quite 0 as field of view),
+    or a binary PGM (``P5``) that OpenCV and the C++ host read shifted or scaled unlike colonlight's levels: a
+    damaged header (a comment where the raster's one whitespace byte belongs, CR LF line ends), a maxval other than
+    255 (or 65535), or bytes past the raster its header declares (compared by size, nothing allocated)."""
+    with open(path, "rb") as f:
+        head = f.read(_HEADER_BYTES)
+    if head.startswith(_JPEG_MAGIC):
+        raise InputError(f"{path}: a JPEG content mask is lossy (levels near 0 and 255 change): save it as PNG or PGM")
+    if not head.startswith(b"P5"):
+        return
+    header = _PGM_HEADER.match(head)
+    width, height, maxval = (int(v) for v in header.groups()) if header else (0, 0, 0)
+    if header is None or min(width, height, maxval) < 1:
+        raise InputError(f"{path}: not a readable image: its binary PGM header is damaged")
+    if maxval not in (255, 65535):
+        raise InputError(f"{path}: a binary PGM mask has maxval 255 (the scene's level) or 65535, not {maxval}")
+    raster, found = width * height * (1 if maxval == 255 else 2), size - header.end()
+    if found != raster:
+        raise InputError(
+            f"{path}: not a readable image: a {width}x{height} binary PGM has {raster} bytes after its header, "
+            f"this one {found} (cut short, extra bytes or a damaged header)"
+        )
+
+
 def read_content_mask(path: Path) -> ContentArea:
     """The area in the mask image at ``path``. InputError naming the file if it cannot be read, is not one grey
-    channel, or shows no scene."""
+    channel, or shows no scene (and for the files :func:`_check_mask_file` refuses)."""
     path = Path(path)
     try:
-        mode = os.stat(path).st_mode
+        info = os.stat(path)
+        if stat.S_ISDIR(info.st_mode):
+            raise InputError(f"{path}: a folder, not a content mask image")
+        if not stat.S_ISREG(info.st_mode):
+            raise InputError(f"{path}: {NOT_REGULAR_FILE}")
+        _check_mask_file(path, info.st_size)
     except OSError as exc:
         raise InputError(f"{path}: cannot read the content mask ({exc.strerror or exc})") from exc
-    if not stat.S_ISREG(mode):
-        raise InputError(f"{path}: {NOT_REGULAR_FILE}")
     check_image_size(path)
     rgb = read_image(path)
     if not (np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 0], rgb[..., 2])):
@@ -107,7 +162,7 @@ __all__ = [
     "OVERLAY",
     "SCENE",
     "area_image",
-    "content_mask_format",
+    "check_mask_output",
     "image_area",
     "mask_digest",
     "pgm_bytes",

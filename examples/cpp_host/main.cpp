@@ -13,11 +13,16 @@
 // the fixed text unchanged. Errors: one line on standard error, exit 1 (2 for a usage error).
 #include <onnxruntime_cxx_api.h>
 
+#include <sys/stat.h>
+
 #include <algorithm>
 #include <array>
+#include <cctype>
+#include <cerrno>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <cstring>
 #include <fstream>
 #include <iostream>
 #include <nlohmann/json.hpp>
@@ -389,18 +394,32 @@ class ContentArea {
     ContentArea() = default;
 
     static ContentArea read(const std::string& path, int width, int height) {
+        // a regular file only: opening a FIFO without a writer blocks forever, a folder opens and reads nothing
+        struct stat info {};
+        if (stat(path.c_str(), &info) != 0)
+            throw Failure(path + ": cannot read the content mask (" + std::strerror(errno) + ")");
+        if (!S_ISREG(info.st_mode)) throw Failure(path + ": not a regular file (a folder, FIFO, socket or device)");
         std::ifstream in(path, std::ios::binary);
-        if (!in) throw Failure(path + ": cannot read the content mask");
-        std::string magic;
-        in >> magic;
+        if (!in) throw Failure(path + ": cannot read the content mask (" + std::strerror(errno) + ")");
+        char magic[2] = {};
+        if (!in.read(magic, 2) || magic[0] != 'P' || magic[1] != '5' || !std::isspace(in.peek()))
+            throw Failure(path + ": not an 8-bit binary PGM (P5, maxval 255) mask: write it with colonlight content");
         const int mask_width = header_number(in, path), mask_height = header_number(in, path);
         const int maxval = header_number(in, path);
-        if (magic != "P5" || maxval != 255)
+        if (maxval != 255)
             throw Failure(path + ": not an 8-bit binary PGM (P5, maxval 255) mask: write it with colonlight content");
         if (mask_width != width || mask_height != height)
             throw Failure(path + ": the mask is " + std::to_string(mask_width) + "x" + std::to_string(mask_height) +
                           ", the frames are " + std::to_string(width) + "x" + std::to_string(height));
-        in.get();  // the single whitespace byte after maxval
+        // the single whitespace byte before the raster: anything else (a comment there) would shift every pixel
+        if (!std::isspace(in.get())) throw Failure(path + ": not an 8-bit binary PGM (P5) mask: its header is damaged");
+        // the raster's length from the file's size, before it is allocated; bytes past it are a shifted raster
+        // (CR LF line ends, a comment after maxval) or another file's data, as colonlight.content_mask refuses them
+        const long long raster = static_cast<long long>(width) * height, left = info.st_size - in.tellg();
+        if (left < raster) throw Failure(path + ": the mask is cut short");
+        if (left > raster)
+            throw Failure(path + ": " + std::to_string(left - raster) + " bytes past the mask's " +
+                          std::to_string(width) + "x" + std::to_string(height) + " raster (a damaged header?)");
         cv::Mat levels(height, width, CV_8U);
         in.read(reinterpret_cast<char*>(levels.data), static_cast<std::streamsize>(levels.total()));
         if (static_cast<std::size_t>(in.gcount()) != levels.total()) throw Failure(path + ": the mask is cut short");
