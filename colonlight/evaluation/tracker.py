@@ -600,10 +600,10 @@ def track_clip(
     keep = _scene_points(scene, np.asarray(frames[0]).shape[:2])
     if keep is not None:
         depths = [np.where(keep, np.asarray(d, dtype=np.float64), np.inf) for d in depths]
-    scenes = _scene_pyramid(None if keep is None else np.asarray(scene), _n_levels(np.asarray(frames[0]).shape[:2], s))
     n = len(frames)
     gt = [np.asarray(p, dtype=np.float64) for p in gt_poses] if gt_poses is not None else None
     n_lv = _n_levels(np.asarray(frames[0]).shape[:2], s)
+    scenes = _scene_pyramid(None if keep is None else np.asarray(scene), n_lv)
     poses = [gt[0].copy() if gt is not None else np.eye(4)]
     affine = np.zeros((n, 2))
     residual, valid = np.zeros(n), np.ones(n)
