@@ -7,7 +7,6 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 from unittest import mock
 
@@ -21,7 +20,6 @@ from colonlight import InputError, read_content_mask
 from colonlight.content_mask import SCENE, pgm_bytes
 
 runner = CliRunner()
-HOST_DIR = Path(__file__).resolve().parents[2] / "examples" / "cpp_host"
 W, H = 16, 12
 
 
@@ -140,30 +138,17 @@ def test_the_service_never_takes_a_mask_path(tmp_path: Path) -> None:
 
 
 @pytest.fixture(scope="module")
-def host(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """``colonlight_host`` built by the example's Makefile (as tests/engine/live/test_cpp_host.py builds it), and an
-    exported model for it; skipped without g++, the headers or the export extra."""
+def host(cpp_host: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """``colonlight_host`` (built once for the session, tests/conftest.py) and an exported model for it; skipped
+    without the export extra."""
     pytest.importorskip("onnxruntime", reason="the export extra (onnxruntime) is not installed")
     pytest.importorskip("onnxscript", reason="the export extra (onnxscript) is not installed")
-    if shutil.which("g++") is None or shutil.which("make") is None:
-        pytest.skip("no g++ or make on this machine (`make -C examples/cpp_host deps` installs them as root)")
-    if not all((Path("/usr/include") / h).is_file() for h in ("opencv4/opencv2/imgproc.hpp", "nlohmann/json.hpp")):
-        pytest.skip("no OpenCV or nlohmann-json headers: `make -C examples/cpp_host deps` (as root) installs them")
-    headers = subprocess.run(["make", "-s", "-C", str(HOST_DIR), "headers"], capture_output=True, text=True)
-    if headers.returncode != 0:
-        pytest.skip("ONNX Runtime's headers could not be fetched")
-    build = tmp_path_factory.mktemp("cpp_host")
-    system = Path("/usr/include/onnxruntime")
-    include = system if system.is_dir() else HOST_DIR / "build/onnxruntime/include"
-    make = ["make", "-C", str(HOST_DIR), f"BUILD={build}", f"ORT_INCLUDE={include}", f"PYTHON={sys.executable}"]
-    result = subprocess.run(make, capture_output=True, text=True, timeout=600)
-    assert result.returncode == 0, result.stdout + result.stderr
     from colonlight.checkpoint import load_weights
     from colonlight.onnx_export import export_onnx
 
-    onnx = build / "model.onnx"
+    onnx = tmp_path_factory.mktemp("host_model") / "model.onnx"
     export_onnx(load_weights(), onnx, size=8)
-    return build / "colonlight_host", onnx
+    return cpp_host, onnx
 
 
 def _run_host(host: tuple[Path, Path], mask: Path) -> subprocess.CompletedProcess[bytes]:

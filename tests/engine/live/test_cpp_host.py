@@ -6,9 +6,7 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -27,42 +25,17 @@ from colonlight.video import VideoWriter  # noqa: E402
 
 from ...networks import random_head_weights  # noqa: E402
 
-HOST_DIR = Path(__file__).resolve().parents[3] / "examples" / "cpp_host"
 WIDTH, HEIGHT, FRAMES = 256, 208, 30
 #: The random heads' network size: 208 > 8 x 24, so their frames take the host's bilinear presample before the
 #: area average, while the shipped and authors' (48 px) are area-averaged at once: both branches of the resize
 RANDOM_HEAD_SIZE = 24
 TOLERANCE = 1e-5
-BUILD_TIMEOUT_S = 600  # compiling against OpenCV and ONNX Runtime on a loaded 2-core machine
 
 
 @pytest.fixture(scope="module")
-def host(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """``colonlight_host``, built by the example's own Makefile (ONNX Runtime's headers fetched by it if needed)."""
-    if shutil.which("g++") is None or shutil.which("make") is None:
-        pytest.skip("no g++ or make on this machine (`make -C examples/cpp_host deps` installs them as root)")
-    missing = [
-        h for h in ("opencv4/opencv2/imgproc.hpp", "nlohmann/json.hpp") if not (Path("/usr/include") / h).is_file()
-    ]
-    if missing:
-        pytest.skip(f"no {', '.join(missing)}: `make -C examples/cpp_host deps` (as root) installs them")
-    headers = subprocess.run(["make", "-s", "-C", str(HOST_DIR), "headers"], capture_output=True, text=True)
-    if headers.returncode != 0:
-        pytest.skip(f"ONNX Runtime's headers could not be fetched: {headers.stderr.strip().splitlines()[-1:]}")
-    build = tmp_path_factory.mktemp("cpp_host")
-    include = (
-        "/usr/include/onnxruntime"
-        if Path("/usr/include/onnxruntime").is_dir()
-        else HOST_DIR / "build/onnxruntime/include"
-    )
-    result = subprocess.run(
-        ["make", "-C", str(HOST_DIR), f"BUILD={build}", f"ORT_INCLUDE={include}", f"PYTHON={sys.executable}"],
-        capture_output=True,
-        text=True,
-        timeout=BUILD_TIMEOUT_S,
-    )
-    assert result.returncode == 0, result.stdout + result.stderr  # a host that does not compile is a defect
-    return build / "colonlight_host"
+def host(cpp_host: Path) -> Path:
+    """``colonlight_host``, built once for the session (tests/conftest.py)."""
+    return cpp_host
 
 
 @pytest.fixture(scope="module")
