@@ -13,18 +13,16 @@ colour, and only scene pixels are written back (README, C++ SLAM host).
 from __future__ import annotations
 
 import hashlib
-import os
 import re
-import stat
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from .atomic import NOT_REGULAR_FILE, atomic_path
+from .atomic import atomic_path, read_regular_file
 from .content_area import ContentArea
 from .errors import InputError, OptionError
-from .frames import IMAGE_SUFFIXES, check_image_size, read_image
+from .frames import IMAGE_SUFFIXES, check_image_size, decode_image
 
 SCENE, OVERLAY, BORDER = 255, 128, 0
 #: The names a mask is written under: PGM (what the C++ host reads) or PNG.
@@ -107,14 +105,13 @@ def mask_digest(path: Path) -> str:
         return hashlib.file_digest(f, "sha256").hexdigest()
 
 
-def _check_mask_file(path: Path, size: int) -> None:
+def _check_mask_file(path: Path, data: bytes) -> None:
     """InputError naming ``path`` for a mask that would be read with wrong levels or in the wrong place: a JPEG
     (lossy: scene pixels that are not quite 255 would count as text, border ones not quite 0 as field of view),
     or a binary PGM (``P5``) that OpenCV and the C++ host read shifted or scaled unlike colonlight's levels: a
     damaged header (a comment where the raster's one whitespace byte belongs, CR LF line ends), a maxval other than
     255 (or 65535), or bytes past the raster its header declares (compared by size, nothing allocated)."""
-    with open(path, "rb") as f:
-        head = f.read(_HEADER_BYTES)
+    head = data[:_HEADER_BYTES]
     if head.startswith(_JPEG_MAGIC):
         raise InputError(f"{path}: a JPEG content mask is lossy (levels near 0 and 255 change): save it as PNG or PGM")
     if not head.startswith(b"P5"):
@@ -125,7 +122,7 @@ def _check_mask_file(path: Path, size: int) -> None:
         raise InputError(f"{path}: not a readable image: its binary PGM header is damaged")
     if maxval not in (255, 65535):
         raise InputError(f"{path}: a binary PGM mask has maxval 255 (the scene's level) or 65535, not {maxval}")
-    raster, found = width * height * (1 if maxval == 255 else 2), size - header.end()
+    raster, found = width * height * (1 if maxval == 255 else 2), len(data) - header.end()
     if found != raster:
         raise InputError(
             f"{path}: not a readable image: a {width}x{height} binary PGM has {raster} bytes after its header, "
@@ -138,16 +135,14 @@ def read_content_mask(path: Path) -> ContentArea:
     channel, or shows no scene (and for the files :func:`_check_mask_file` refuses)."""
     path = Path(path)
     try:
-        info = os.stat(path)
-        if stat.S_ISDIR(info.st_mode):
-            raise InputError(f"{path}: a folder, not a content mask image")
-        if not stat.S_ISREG(info.st_mode):
-            raise InputError(f"{path}: {NOT_REGULAR_FILE}")
-        _check_mask_file(path, info.st_size)
+        data = read_regular_file(path)  # read once; a FIFO is refused, never waited on
+    except IsADirectoryError:
+        raise InputError(f"{path}: a folder, not a content mask image") from None
     except OSError as exc:
         raise InputError(f"{path}: cannot read the content mask ({exc.strerror or exc})") from exc
-    check_image_size(path)
-    rgb = read_image(path)
+    _check_mask_file(path, data)
+    check_image_size(path)  # the header's size against the pixel cap, before the pixels are decoded
+    rgb = decode_image(np.frombuffer(data, np.uint8), path)
     if not (np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 0], rgb[..., 2])):
         raise InputError(f"{path}: a content mask is grey (0 border, 255 scene), not a colour image")
     try:

@@ -203,6 +203,12 @@ def read_image(path: Path) -> np.ndarray:
         raise InputError(f"{path}: permission denied") from exc
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    return decode_image(data, path)
+
+
+def decode_image(data: np.ndarray, path: Path) -> np.ndarray:
+    """The image file's bytes ``data`` (uint8) decoded as :func:`read_image` reads the file, for a caller that has
+    read them already; InputError naming ``path`` if they are no readable image."""
     if data.size == 0:
         raise InputError(f"{path}: empty file (0 bytes)")
     # IMREAD_COLOR: always 3 channels (grey expanded, alpha dropped), EXIF orientation applied;
