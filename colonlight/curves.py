@@ -7,13 +7,13 @@ frame is applied to the full-resolution frame.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import cv2
 import numpy as np
 
 from .errors import OptionError
+from .methods.base import number_option
 
 _LEVELS = np.arange(256, dtype=np.float64) / 255.0
 #: The table that leaves every value as it is (read-only: shared).
@@ -23,12 +23,10 @@ IDENTITY_LUT.flags.writeable = False
 
 def _positive(name: str, value: float) -> float:
     """``value`` as a finite positive float, else :class:`OptionError` naming it (an int past a float's range or
-    a value of no number type failed in numpy's ``isfinite`` with a TypeError that named nothing)."""
-    try:
-        number = float(value)
-    except (TypeError, ValueError, OverflowError):
-        number = math.nan
-    if not math.isfinite(number) or number <= 0:
+    a value of no number type failed in numpy's ``isfinite`` with a TypeError that named nothing): the methods'
+    own rule for a number option (:func:`~colonlight.methods.base.number_option`), with the range."""
+    number = number_option(name, value, "finite and > 0")
+    if number <= 0:
         raise OptionError(f"{name} must be finite and > 0, got {value!r}")
     return number
 

@@ -27,6 +27,7 @@ import numpy as np
 from .atomic import NOT_REGULAR_FILE, write_bytes_atomic
 from .errors import FrameTooLargeError, InputError, OptionError
 from .limits import DEFAULT_FPS, DEFAULT_JPEG_QUALITY, max_pixels_setting
+from .methods.base import number_option
 from .video import DecodedFrame, is_video
 
 IMAGE_SUFFIXES: frozenset[str] = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"})
@@ -282,9 +283,7 @@ def encode_image(
         raise ValueError(f"expected an HxWx3 uint8 RGB frame with at least one pixel, got {rgb.shape}")
     for name, value, top in (("quality", quality, 100), ("png_compression", png_compression, 9)):
         # int() of NaN, of an infinity or of '90' failed with Python's own words; OpenCV clamps what is out of range
-        if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-            raise OptionError(f"{name} must be a number within 0..{top}, got {value!r}")
-        if not (math.isfinite(value) and 0 <= value <= top):
+        if not 0 <= number_option(name, value, f"a number within 0..{top}", text=False) <= top:
             raise OptionError(f"{name} must be within 0..{top}, got {value}")
     if fmt in ("jpg", "jpeg") and max(rgb.shape[:2]) > MAX_JPEG_SIDE:
         # the format's own limit: OpenCV printed "[ERROR:...] imencode(): can't encode data ... Maximum supported
