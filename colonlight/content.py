@@ -28,6 +28,7 @@ content's mean colour; its output is pasted back at content pixels only.
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections import deque
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
@@ -96,7 +97,7 @@ def parse_content(value: str | Path) -> str:
         read_content_mask(Path(value))
     except InputError as exc:
         raise OptionError(f"{wanted}: {exc}") from None
-    return str(Path(value).absolute())
+    return os.path.abspath(value)  # normalised: '../masks/scope.pgm' is recorded without its '..'
 
 
 def content_setting(content: str) -> str | dict[str, str]:

@@ -72,7 +72,9 @@ class StreamOptions:
             raise OptionError(
                 f"timeout must be a number of seconds above 0 and at most {MAX_TIMEOUT_S:.0f}, got {self.timeout_s}"
             )
-        parse_content(self.content)
+        # stored parsed, as ClipOptions stores it: "AUTO" kept as given was taken for a mask's path when the record
+        # was written, and stream.json was lost to "No such file or directory"
+        object.__setattr__(self, "content", parse_content(self.content))
 
 
 @dataclass(frozen=True)

@@ -143,3 +143,19 @@ def test_enhance_given_the_mask_writes_what_it_writes_finding_the_area(clip: Pat
     unusable = runner.invoke(app, ["enhance", str(clip), "-o", str(tmp_path / "none"), "--content", str(batch)])
     assert unusable.exit_code == 2 and "content must be" in unusable.output, unusable.output
     assert not (tmp_path / "none").exists()
+
+
+def test_stream_records_content_as_parsed(clip: Path, tmp_path: Path) -> None:
+    """`stream --content AUTO` (any case, any spaces) ran, but its record took "AUTO" for a mask's path and
+    stream.json was lost to "No such file or directory"; the options now hold the parsed word, or the mask's
+    absolute path, as a clip's do."""
+    from colonlight.live import StreamOptions
+
+    assert StreamOptions(content=" AUTO").content == "auto"
+    mask = tmp_path / "scope.pgm"
+    assert runner.invoke(app, ["content", str(clip), "-o", str(mask)]).exit_code == 0
+    assert StreamOptions(content=os.path.relpath(mask)).content == str(mask.absolute())
+    out = tmp_path / "out"
+    done = runner.invoke(app, ["stream", str(clip), "-o", str(out), "--content", " AUTO", "-m", "none", "-q"])
+    assert done.exit_code == 0, done.output
+    assert json.loads((out / "stream.json").read_text())["options"]["content"] == "auto"
