@@ -25,6 +25,7 @@ def test_a_bordered_clip_gives_its_content_area_and_a_plain_one_nothing(tmp_path
     framed = [spec.apply(f) for f in plain]
     assert scene_mask(EvalClip("plain", "constructed", plain), "auto") is None
     found = scene_mask(EvalClip("framed", "constructed", framed), "full")  # whatever the methods are shown
+    assert np.array_equal(scene_mask(EvalClip("framed", "constructed", framed), " AUTO"), found)  # a word
     fov, _ = spec.masks(96, 128)
     assert found is not None and (found == fov).mean() > 0.99
     given = np.zeros((96, 128), bool)
