@@ -477,7 +477,7 @@ def evaluate_clips(
     :class:`colonlight.evaluation.tracker.TrackerSettings` (default thresholds when ``None``); ``brightness``:
     the settings tracked in (``"both"``, or any of ``fixed``/``affine``). ``content``: what the methods see
     (``auto``, the default as in ``colonlight enhance``: the field of view inside a black border, less fixed text;
-    ``full``). ``oracles``: reference rows (clean and
+    ``full``; or a mask image's path, :func:`colonlight.content.parse_content`). ``oracles``: reference rows (clean and
     the three oracles) on clips with clean frames; without any such clip they are listed as skipped with the
     reason. ``threads``:
     torch and OpenCV threads while evaluating (restored afterwards; ``None`` leaves them). One by default, so
