@@ -28,7 +28,6 @@ content's mean colour; its output is pasted back at content pixels only.
 from __future__ import annotations
 
 import dataclasses
-import os
 from collections import deque
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
@@ -39,7 +38,7 @@ import cv2
 import numpy as np
 
 from .content_area import ContentArea, iou
-from .content_mask import mask_digest, read_content_mask
+from .content_mask import ContentMask, load_content_mask
 from .errors import FrameShapeError, InputError, OptionError
 from .methods import create_method
 from .methods.base import FrameResult, Method, MethodStream, check_frame
@@ -82,11 +81,14 @@ _SQUARE3 = np.ones((3, 3), np.uint8)
 
 
 def parse_content(value: str | Path) -> str:
-    """``"auto"`` or ``"full"`` (any case), else the absolute path of a readable content mask (``colonlight
-    content``'s, or one drawn by hand: 255 scene, 0 border), as text (absolute: a cluster's worker processes read
-    it from their own working folders); OptionError naming the file and the cause otherwise.
+    """``"auto"`` or ``"full"`` (any case), else a readable content mask (``colonlight content``'s, or one drawn by
+    hand: 255 scene, 0 border) read now, once for the run: a :class:`~colonlight.content_mask.ContentMask`, the
+    text of its absolute path holding the hash recorded and the area used; OptionError naming the file and the
+    cause otherwise. A mask parsed already is kept as it is, never read again.
     For the shells that run on the user's own files (``enhance``, ``stream``, ``evaluate``); the service takes
     :func:`parse_content_mode`'s two words only, never a path on the server."""
+    if isinstance(value, ContentMask):  # parsed options passed on (a clip's stream, evaluate_clips, replace())
+        return value
     word = str(value).strip().lower()
     if word in CONTENT_MODES:
         return word
@@ -94,18 +96,19 @@ def parse_content(value: str | Path) -> str:
     if not str(value).strip():
         raise OptionError(f"{wanted}, got {value!r}")
     try:
-        read_content_mask(Path(value))
+        return load_content_mask(Path(value))
     except InputError as exc:
         raise OptionError(f"{wanted}: {exc}") from None
-    return os.path.abspath(value)  # normalised: '../masks/scope.pgm' is recorded without its '..'
 
 
 def content_setting(content: str) -> str | dict[str, str]:
-    """What an output records of ``content`` (parsed): the word, or a mask's path with the SHA-256 of its bytes,
-    so that the same mask gives the same record and an edited one is seen as another setting."""
-    if content in CONTENT_MODES:
-        return content
-    return {"mask": content, "sha256": mask_digest(Path(content))}
+    """What an output records of ``content`` (:func:`parse_content`'s): the word, or a mask's path with the
+    SHA-256 of the bytes its area was read from, so that the same mask gives the same record and an edited one
+    is seen as another setting."""
+    mask = parse_content(content)
+    if not isinstance(mask, ContentMask):
+        return mask
+    return {"mask": str(mask), "sha256": mask.sha256}
 
 
 def parse_content_mode(value: str) -> ContentMode:
@@ -408,14 +411,15 @@ class ContentStream(MethodStream):
 
 def content_stream(method: Method, mode: str = DEFAULT_CONTENT, *, live: bool = False) -> MethodStream:
     """A fresh stream of ``method`` for one clip, shown the content area (``auto``), the whole frame (``full``)
-    or the area of a mask image (any other value: its path, :func:`parse_content`). ``live``: for a source that
-    cannot wait, :func:`live_content_stream`."""
+    or the area of a mask image (any other value: its path, read here, or :func:`parse_content`'s mask, whose
+    area is used without reading the file again). ``live``: for a source that cannot wait,
+    :func:`live_content_stream`."""
     inner = method.stream()
     word = parse_content(mode)
     if word == "full":
         return inner
-    if word != "auto":  # read for each clip: a worker process of a cluster reads the mask itself
-        return ContentStream(inner, area=read_content_mask(Path(word)), area_name=f"the content mask {word}")
+    if isinstance(word, ContentMask):  # the area read once for the run, sent to worker processes with the options
+        return ContentStream(inner, area=word.area, area_name=f"the content mask {word}")
     return ContentStream(inner, first_frames=LIVE_FIRST_FRAMES, resize="redetect") if live else ContentStream(inner)
 
 

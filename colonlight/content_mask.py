@@ -13,7 +13,9 @@ colour, and only scene pixels are written back (README, C++ SLAM host).
 from __future__ import annotations
 
 import hashlib
+import os
 import re
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -34,6 +36,41 @@ _PGM_HEADER = re.compile(rb"P5" + _GAP + rb"(\d+)" + _GAP + rb"(\d+)" + _GAP + r
 _HEADER_BYTES = 65536
 #: JPEG's (and MPO's) first bytes: a lossy image, whose levels beside an edge are neither 0 nor 255.
 _JPEG_MAGIC = b"\xff\xd8\xff"
+#: A WebP file: ``RIFF``, its size, ``WEBP``, then chunks (FourCC, little-endian size, data padded to an even
+#: length). ``VP8 `` holds a lossy image, ``VP8L`` a lossless one; an animation frame (``ANMF``) holds its image's
+#: chunks after a 16-byte frame header.
+_WEBP_FIRST_CHUNK = 12
+_WEBP_LOSSY, _WEBP_FRAME, _WEBP_FRAME_HEADER = b"VP8 ", b"ANMF", 16
+
+
+class ContentMask(str):
+    """A ``--content MASK`` read once for a whole run (:func:`load_content_mask`): the text is the mask's absolute
+    path, :attr:`sha256` the SHA-256 of the bytes read and :attr:`area` the area those same bytes show.
+
+    Every clip is shown :attr:`area` and the settings record :attr:`sha256`, so a mask edited while a batch runs
+    changes neither: hashed once and read again for each clip, the record could name bytes no clip was shown. A
+    ``str`` so that it goes wherever the path went (the options' ``content``, the manifest's settings, a
+    ``content: str`` parameter) and compares equal to it; immutable, and pickled whole (a pool's or a cluster's
+    worker process gets the area with the options, and never reads the file)."""
+
+    __slots__ = ("area", "sha256")
+    area: ContentArea
+    sha256: str
+
+    def __new__(cls, path: str, sha256: str, area: ContentArea) -> ContentMask:
+        mask = super().__new__(cls, path)
+        object.__setattr__(mask, "sha256", sha256)
+        object.__setattr__(mask, "area", area)
+        return mask
+
+    def __setattr__(self, name: str, value: object) -> None:
+        raise AttributeError(f"a content mask is read once: its {name} cannot be changed")
+
+    def __delattr__(self, name: str) -> None:
+        raise AttributeError(f"a content mask is read once: its {name} cannot be changed")
+
+    def __reduce__(self) -> tuple[type[ContentMask], tuple[str, str, ContentArea]]:
+        return ContentMask, (str(self), self.sha256, self.area)
 
 
 def area_image(area: ContentArea) -> np.ndarray:
@@ -99,21 +136,20 @@ def write_content_mask(path: Path, area: ContentArea) -> None:
         tmp.write_bytes(data)
 
 
-def mask_digest(path: Path) -> str:
-    """The SHA-256 of the mask file's bytes: what an output records of the mask it was made with."""
-    with open(path, "rb") as f:
-        return hashlib.file_digest(f, "sha256").hexdigest()
-
-
 def _check_mask_file(path: Path, data: bytes) -> None:
-    """InputError naming ``path`` for a mask that would be read with wrong levels or in the wrong place: a JPEG
-    (lossy: scene pixels that are not quite 255 would count as text, border ones not quite 0 as field of view),
-    or a binary PGM (``P5``) that OpenCV and the C++ host read shifted or scaled unlike colonlight's levels: a
-    damaged header (a comment where the raster's one whitespace byte belongs, CR LF line ends), a maxval other than
-    255 (or 65535), or bytes past the raster its header declares (compared by size, nothing allocated)."""
+    """InputError naming ``path`` for a mask that would be read with wrong levels or in the wrong place: a JPEG or
+    a lossy WebP (scene pixels that are not quite 255 would count as text, border ones not quite 0 as field of
+    view; a lossless WebP decodes exactly), or a binary PGM (``P5``) that OpenCV and the C++ host read shifted or
+    scaled unlike colonlight's levels: a damaged header (a comment where the raster's one whitespace byte belongs,
+    CR LF line ends), a maxval other than 255 (or 65535), or bytes past the raster its header declares (compared
+    by size, nothing allocated)."""
     head = data[:_HEADER_BYTES]
     if head.startswith(_JPEG_MAGIC):
         raise InputError(f"{path}: a JPEG content mask is lossy (levels near 0 and 255 change): save it as PNG or PGM")
+    if _lossy_webp(data):
+        raise InputError(
+            f"{path}: a lossy WebP content mask (levels near 0 and 255 change): save it as PNG, PGM or lossless WebP"
+        )
     if not head.startswith(b"P5"):
         return
     header = _PGM_HEADER.match(head)
@@ -130,9 +166,30 @@ def _check_mask_file(path: Path, data: bytes) -> None:
         )
 
 
-def read_content_mask(path: Path) -> ContentArea:
-    """The area in the mask image at ``path``. InputError naming the file if it cannot be read, is not one grey
-    channel, or shows no scene (and for the files :func:`_check_mask_file` refuses)."""
+def _lossy_webp(data: bytes) -> bool:
+    """True for a WebP holding a lossy image: a ``VP8 `` chunk, alone (the simple format) or among an extended
+    file's (``VP8X``) chunks, an animation's frames included. (An ``ALPH`` chunk, whose alpha may be lossy too,
+    only goes with a ``VP8 `` one; the alpha is dropped when the mask is read.)"""
+    is_webp = data.startswith(b"RIFF") and data[8:_WEBP_FIRST_CHUNK] == b"WEBP"
+    return is_webp and _WEBP_LOSSY in _riff_chunks(data, _WEBP_FIRST_CHUNK, len(data))
+
+
+def _riff_chunks(data: bytes, start: int, end: int) -> Iterator[bytes]:
+    """The FourCCs of the chunks in ``data[start:end]``, then those of each WebP animation frame's image; a
+    chunk's size is not trusted past ``end`` (a file cut short ends the walk)."""
+    while start + 8 <= end:
+        fourcc, size = data[start : start + 4], int.from_bytes(data[start + 4 : start + 8], "little")
+        yield fourcc
+        if fourcc == _WEBP_FRAME:
+            yield from _riff_chunks(data, start + 8 + _WEBP_FRAME_HEADER, min(end, start + 8 + size))
+        start += 8 + size + size % 2
+
+
+def load_content_mask(path: Path) -> ContentMask:
+    """The mask image at ``path``, read once: its absolute path (a cluster's worker processes run in their own
+    working folders; '../masks/scope.pgm' is recorded without its '..'), the SHA-256 of the bytes read and the
+    area they show. InputError naming the file if it cannot be read, is not one grey channel, or shows no scene
+    (and for the files :func:`_check_mask_file` refuses)."""
     path = Path(path)
     try:
         data = read_regular_file(path)  # read once; a FIFO is refused, never waited on
@@ -146,20 +203,27 @@ def read_content_mask(path: Path) -> ContentArea:
     if not (np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 0], rgb[..., 2])):
         raise InputError(f"{path}: a content mask is grey (0 border, 255 scene), not a colour image")
     try:
-        return image_area(np.ascontiguousarray(rgb[..., 0]))
+        area = image_area(np.ascontiguousarray(rgb[..., 0]))
     except ValueError as exc:
         raise InputError(f"{path}: {exc}") from None
+    return ContentMask(os.path.abspath(path), hashlib.sha256(data).hexdigest(), area)
+
+
+def read_content_mask(path: Path) -> ContentArea:
+    """The area in the mask image at ``path`` (:func:`load_content_mask`'s, with its errors)."""
+    return load_content_mask(path).area
 
 
 __all__ = [
     "BORDER",
+    "ContentMask",
     "MASK_SUFFIXES",
     "OVERLAY",
     "SCENE",
     "area_image",
     "check_mask_output",
     "image_area",
-    "mask_digest",
+    "load_content_mask",
     "pgm_bytes",
     "read_content_mask",
     "write_content_mask",

@@ -31,14 +31,13 @@ import cv2
 import numpy as np
 
 from ..content import (
-    CONTENT_MODES,
     DEFAULT_CONTENT,
     content_setting,
     content_stream,
     find_content_area,
     parse_content,
 )
-from ..content_mask import read_content_mask
+from ..content_mask import ContentMask
 from ..errors import ColonlightError, OptionError
 from ..limits import DEFAULT_FPS
 from ..methods import Method, available_methods, create_method
@@ -252,8 +251,8 @@ def scene_mask(clip: EvalClip, content: str) -> np.ndarray | None:
     ``content``, else the content area ``colonlight enhance`` finds on the input frames, whatever the methods
     are shown: a scope's border and on-screen text are not scene to a SLAM system either way."""
     content = parse_content(content)  # evaluate_clip is public: "AUTO" is a word, not a mask's path
-    if content not in CONTENT_MODES:
-        area = read_content_mask(Path(content))
+    if isinstance(content, ContentMask):  # the area the methods are shown, read once for the run
+        area = content.area
         if area.fov.shape != clip.frames[0].shape[:2]:
             return None  # another size: every method's clip fails on it before it is tracked
     else:

@@ -1,10 +1,14 @@
 """Hostile content masks and `colonlight content` arguments: a mask colonlight (or the C++ host) would read with
-wrong levels or shifted is refused in one line naming it, the host never hangs on one, `content` never writes
-its mask over its own clip, and the service never takes a path."""
+wrong levels or shifted is refused in one line naming it, the host never hangs on one, a mask edited while a
+batch runs changes neither what the clips are shown nor what is recorded, `content` never writes its mask over
+its own clip, and the service never takes a path."""
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
+import pickle
 import shutil
 import subprocess
 from pathlib import Path
@@ -16,8 +20,8 @@ import pytest
 from typer.testing import CliRunner
 
 from cli.main import app
-from colonlight import InputError, read_content_mask
-from colonlight.content_mask import SCENE, pgm_bytes
+from colonlight import ClipJob, ClipOptions, ClipOutcome, InputError, MethodSpec, read_content_mask, run_batch
+from colonlight.content_mask import BORDER, SCENE, area_image, image_area, pgm_bytes
 
 runner = CliRunner()
 W, H = 16, 12
@@ -77,6 +81,54 @@ def test_a_jpeg_mask_is_refused_as_lossy(tmp_path: Path) -> None:
         with pytest.raises(InputError, match="JPEG content mask is lossy") as caught:
             read_content_mask(path)
         assert str(path) in str(caught.value)
+
+
+def test_a_lossy_webp_mask_is_refused_as_lossy(tmp_path: Path) -> None:
+    """A lossy WebP ('VP8 ', alone or in an extended file beside its alpha) changes levels near edges as a JPEG
+    does; it was read, and refused as "not a colour image" at best. A lossless one ('VP8L') reads exactly."""
+    mask = _mask()
+    alpha = np.where(mask == BORDER, 0, 255).astype(np.uint8)  # transparent border: an extended file (VP8X, ALPH)
+    for name, image in (("grey", mask), ("alpha", np.dstack([mask, mask, mask, alpha]))):
+        path = tmp_path / f"{name}.webp"
+        assert cv2.imwrite(str(path), image, [cv2.IMWRITE_WEBP_QUALITY, 90])
+        with pytest.raises(InputError, match="lossy WebP content mask") as caught:
+            read_content_mask(path)
+        assert str(caught.value).startswith(f"{path}: ") and "\n" not in str(caught.value)
+        assert cv2.imwrite(str(path), image, [cv2.IMWRITE_WEBP_QUALITY, 101])  # lossless
+        assert np.array_equal(area_image(read_content_mask(path)), mask)
+
+
+def test_a_mask_edited_during_a_batch_changes_neither_area_nor_record(tmp_path: Path) -> None:
+    """The mask is read once, when the options are parsed: every clip is shown the area of those bytes and records
+    their hash. It was hashed for the record and read again for each clip, so a mask edited after the options
+    were made was recorded by its new bytes, and a clip after an edit between clips was shown another area than
+    the clip before (one run, one mask path in its manifest)."""
+    mask = tmp_path / "scope.pgm"
+    parsed = pgm_bytes(_mask())
+    mask.write_bytes(parsed)
+    opts = ClipOptions(fps=None, content=str(mask))
+    narrowed = _mask()
+    narrowed[:, :8] = BORDER  # another box, no text: another area record
+    mask.write_bytes(pgm_bytes(narrowed))  # edited after the options were parsed, before the batch
+    jobs = []
+    for name in ("a", "b"):
+        folder = tmp_path / "in" / name
+        folder.mkdir(parents=True)
+        for i in range(3):
+            cv2.imwrite(str(folder / f"{i}.png"), np.full((H, W, 3), 60 + 20 * i, np.uint8))
+        jobs.append(ClipJob(folder, name, tmp_path / "out" / name))
+
+    def edit(outcome: ClipOutcome) -> None:  # and again between the clips
+        mask.write_bytes(pgm_bytes(np.full((H, W), SCENE, np.uint8)))
+
+    outcomes = run_batch(jobs, MethodSpec("none"), opts, tmp_path / "out", on_outcome=edit)
+    assert [o.status for o in outcomes] == ["done", "done"], outcomes
+    for name in ("a", "b"):
+        record = json.loads((tmp_path / "out" / name / "gammas.json").read_text())
+        assert record["settings"]["content"] == {"mask": str(mask), "sha256": hashlib.sha256(parsed).hexdigest()}
+        assert record["frames"][0]["content"] == image_area(_mask()).summary()  # the area of the recorded bytes
+    sent = pickle.loads(pickle.dumps(opts))  # what a worker process gets: the area read, no path to read again
+    assert sent.content == str(mask) and np.array_equal(area_image(sent.content.area), _mask())
 
 
 def test_a_folder_given_as_mask_is_named_a_folder(tmp_path: Path) -> None:
