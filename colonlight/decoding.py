@@ -119,6 +119,12 @@ class DecodeReport:
     truncated: str | None = None
 
     @property
+    def cut_note(self) -> str:
+        """``"; the file is truncated: REASON"`` if the file looks cut short, else ``""``: what the one-line error
+        of a clip too short to use adds, as a finished clip's :attr:`warnings` say it."""
+        return f"; the file is truncated: {self.truncated}" if self.truncated else ""
+
+    @property
     def warnings(self) -> list[str]:
         """One line each for what a user should know about the clip (empty for a sound clip)."""
         out = []
@@ -548,7 +554,10 @@ def _decode(
     if decoded == 0:
         raise _index_cut_error(path) or _error(path, "no decodable video frames (truncated or corrupt?)")
     if decoded < min_frames:
-        raise _error(path, f"too short: {decoded} frame(s) decoded, at least {min_frames} needed")
+        # the container's sizes are read now, not after the last frame: a clip cut short fails here, and said
+        # alone "too short" sends the user to a recording that was long enough rather than to the cut copy
+        report.truncated = truncation_reason(path, container.format.name) or report.truncated
+        raise _error(path, f"too short: {decoded} frame(s) decoded, at least {min_frames} needed{report.cut_note}")
     report.discontinuities = ts.packets.discontinuities
     if selector is not None:
         runs.extend(selector.close_runs(ts.eof_pts()))

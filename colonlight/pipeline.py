@@ -419,8 +419,9 @@ def _enhance_clip(
             raise InputError(
                 f"{source}: its {report.source_frames} frames span too short a time for {fps_out:g} fps: only "
                 f"{len(head)} frame(s) at that rate, at least {MIN_FRAMES} are needed (fps 0 keeps every frame)"
+                f"{report.cut_note}"
             )
-        raise InputError(f"{source}: only {len(head)} frame(s); at least {MIN_FRAMES} are needed")
+        raise InputError(f"{source}: only {len(head)} frame(s); at least {MIN_FRAMES} are needed{report.cut_note}")
     first_size = head[0].image.shape[:2]
     if opts.video and max(side + side % 2 for side in first_size) > MAX_VIDEO_SIDE:  # else x264 fails, cryptically
         stop.set()

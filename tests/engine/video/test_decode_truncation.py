@@ -13,6 +13,7 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
+import av
 import pytest
 from colonlight_cli.main import app
 from typer.testing import CliRunner
@@ -116,3 +117,27 @@ def test_cli_marks_a_truncated_clip_done_and_truncated_with_a_warning(
     assert rerun.exit_code == 0, rerun.output
     entry = {c["clip"]: c for c in json.loads((out / "manifest.json").read_text())["clips"]}["cut"]
     assert entry["skipped"] is True and entry["truncated"] is True  # a skipped clip keeps its flag
+
+
+@needs_ffmpeg
+def test_a_clip_too_short_because_it_was_cut_says_it_is_truncated(tmp_path: Path) -> None:
+    """A clip cut inside its second or third frame fails as too short, and says the file is cut: the failure came
+    before the container's sizes were compared (after the last frame), and "too short" alone sends the user to a
+    recording that was long enough rather than to the cut copy."""
+    src = make_clip(tmp_path / "c.mkv", 3, 25, size=(64, 48))
+    with av.open(str(src)) as container:
+        starts = [packet.pos for packet in container.demux(video=0) if packet.size]  # in decoding order
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    data = src.read_bytes()
+    for name, kept in (("one", 1), ("two", 2)):  # two frames 1/25 s apart give one at the default 18 fps
+        (videos / f"{name}.mkv").write_bytes(data[: starts[kept] + 1])
+    with pytest.raises(InputError, match="too short") as caught:
+        next(iter_video_frames(videos / "one.mkv", None, min_frames=2))
+    cut = f"the file is truncated: the file ends at byte {starts[1] + 1} but its container says it ends at byte"
+    assert cut in str(caught.value) and "\n" not in str(caught.value)
+    result = CliRunner().invoke(app, ["enhance", str(videos), "-o", str(tmp_path / "out"), "--method", "none", "-q"])
+    assert result.exit_code == 1, result.output
+    for name, says in (("one", "too short: 1 frame(s) decoded"), ("two", "its 2 frames span too short a time")):
+        (line,) = [line for line in result.output.splitlines() if f"{name}.mkv: " in line]
+        assert says in line and "; the file is truncated: the file ends at byte" in line, line
