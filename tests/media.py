@@ -123,6 +123,22 @@ def make_clip(
     return path
 
 
+def synthetic_clip_frames(path: Path, n_frames: int, width: int, height: int, seed: int) -> list[np.ndarray]:
+    """The first ``n_frames`` of a synthetic colonoscopy clip (with its lighting changes), written to ``path`` as
+    H.264 and decoded (RGB): the frames a host reads from a real recording, compression included."""
+    from colonlight.sources import clip_frames
+    from colonlight.synth import SynthConfig, generate_clip
+    from colonlight.video import VideoWriter
+
+    cfg = SynthConfig.sample(np.random.default_rng(seed), split="train", width=width, height=height)
+    with VideoWriter(path, fps=18) as writer:
+        for i, f in enumerate(generate_clip(cfg, seed=seed)):
+            if i == n_frames:
+                break
+            writer.write(f.image)
+    return [f.image for f in clip_frames(path, fps=None)]
+
+
 def make_solid_clip(path: Path, size: tuple[int, int], n_frames: int = 2, fps: int = 6) -> Path:
     """A grey H.264 clip from FFmpeg's ``color`` source: cheap at any size (e.g. a tiny file of huge frames)."""
     w, h = size
@@ -272,6 +288,13 @@ def ffmpeg_frames(path: Path, vf: str | None = None) -> Iterator[np.ndarray]:
         w, h = int(fields[1]), int(fields[2])
         yield np.frombuffer(data, np.uint8, w * h * 3, pos).reshape(h, w, 3)
         pos += w * h * 3
+
+
+def ffmpeg_decoded(data: bytes, fmt: str, width: int, height: int) -> np.ndarray:
+    """``(N, height, width, 3)`` RGB frames as the ffmpeg tool decodes a ``fmt`` stream (``yuv4mpegpipe``,
+    ``mpegts``) held in memory: what a player downstream of a pipe would see."""
+    args = ["-f", fmt, "-i", "-", "-f", "rawvideo", "-pix_fmt", "rgb24", "-"]
+    return np.frombuffer(_run(args, stdin=data), np.uint8).reshape(-1, height, width, 3)
 
 
 def ffmpeg_fps_indices(path: Path, fps: str | float = 18) -> list[int]:

@@ -6,7 +6,6 @@ variables), so the tests exercise the command, the settings, the app and uvicorn
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -16,6 +15,7 @@ from pathlib import Path
 
 import httpx
 
+from .commands import colonlight_env
 from .ports import free_port
 
 
@@ -35,16 +35,8 @@ class ServiceServer:
 
     def start(self, wait_ready: bool = True, timeout: float = 180.0) -> ServiceServer:
         self.port = free_port()
-        env = {k: v for k, v in os.environ.items() if not k.startswith("COLONLIGHT_")}
-        env.update(
-            {
-                "COLONLIGHT_DATA_DIR": str(self.data_dir),
-                "COLONLIGHT_DEVICE": "cpu",
-                "COLONLIGHT_LOG_LEVEL": "warning",
-                "PYTHONUNBUFFERED": "1",
-            }
-        )
-        env.update(self.extra_env)
+        env = colonlight_env()
+        env.update({"COLONLIGHT_DATA_DIR": str(self.data_dir), "COLONLIGHT_LOG_LEVEL": "warning", **self.extra_env})
         log = open(self.log_path, "ab")  # noqa: SIM115 - kept open for the process's life
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "colonlight_cli.main", "serve", "--host", "127.0.0.1", "--port", str(self.port)],

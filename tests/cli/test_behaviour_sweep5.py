@@ -9,13 +9,13 @@ as a backlog of ``--timeout`` seconds. They are the source's tail, not a lag.
 from __future__ import annotations
 
 import json
-import os
 import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+from ..commands import colonlight_env
 from ..media import ffmpeg_exe, needs_ffmpeg
 from ..ports import free_port
 
@@ -27,11 +27,12 @@ PORTS = range(18600, 18700)  # this file's loopback ports
 def test_udp_stream_that_ends_is_not_reported_as_falling_behind(tmp_path: Path) -> None:
     port = free_port(socket.SOCK_DGRAM, PORTS)
     out = tmp_path / "live"
-    env = {k: v for k, v in os.environ.items() if not k.startswith("COLONLIGHT_")}
-    env.update({"COLONLIGHT_DEVICE": "cpu", "PYTHONUNBUFFERED": "1"})
     cmd = [sys.executable, "-m", "colonlight_cli.main", "stream", f"udp://127.0.0.1:{port}", "-o", str(out)]
     proc = subprocess.Popen(
-        [*cmd, "--method", "none", "--timeout", "2"], env=env, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL
+        [*cmd, "--method", "none", "--timeout", "2"],
+        env=colonlight_env(),
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
     )
     try:
         time.sleep(2.0)  # the listener binds the port before the sender starts

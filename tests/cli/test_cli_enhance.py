@@ -10,7 +10,6 @@ import os
 import shutil
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -21,6 +20,7 @@ import pytest
 from colonlight_cli.main import app
 from typer.testing import CliRunner
 
+from ..commands import colonlight_command
 from ..media import make_clip, make_image_folder, text_file, truncated_copy, zero_byte_file
 from ..outputs import output_bytes, tree_bytes
 
@@ -236,18 +236,13 @@ def test_version_and_info() -> None:
     assert "rnn" in info["methods"] and "torch" in info["versions"]
 
 
-def _colonlight() -> list[str]:
-    exe = Path(sys.executable).parent / "colonlight"
-    return [str(exe)] if exe.exists() else [sys.executable, "-m", "colonlight_cli.main"]
-
-
 @pytest.mark.parametrize("kill_after_files", [1, 25, 60])
 def test_kill_9_then_rerun_is_byte_identical(tmp_path: Path, random_weights: Path, kill_after_files: int) -> None:
     """Kill a real run with SIGKILL at different moments; rerunning completes it, byte for byte as a clean run."""
     src = tmp_path / "videos"
     for i in range(3):
         make_clip(src / f"c{i}.mp4", n_frames=75, fps=30, size=(256, 192))
-    cmd = [*_colonlight(), "enhance", str(src), "--weights", str(random_weights), "--video", "-q", "--workers", "1"]
+    cmd = colonlight_command("enhance", src, "--weights", random_weights, "--video", "-q", "--workers", "1")
     clean = tmp_path / "clean"
     subprocess.run([*cmd, "-o", str(clean)], check=True, capture_output=True, timeout=300)
 

@@ -22,28 +22,13 @@ import cv2
 import numpy as np
 import pytest
 
+from ..commands import run_colonlight
 from ..media import make_clip, make_image_folder, needs_ffmpeg
 from ..outputs import output_bytes
 
 pytestmark = [needs_ffmpeg, pytest.mark.timeout(300)]
 
 NONE = ("--method", "none", "-q", "-j", "1")
-
-
-def colonlight(*args: str, env: dict[str, str] | None = None, timeout: float = 120) -> tuple[int, str]:
-    """Run ``colonlight ARGS`` as a real process; its exit code and output (stdout and stderr), checked to hold no
-    traceback."""
-    proc = subprocess.run(
-        [sys.executable, "-m", "colonlight_cli.main", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        check=False,
-        env={**os.environ, "COLUMNS": "400", "NO_COLOR": "1", "TERM": "dumb", **(env or {})},
-    )
-    output = proc.stdout + proc.stderr
-    assert "Traceback" not in output, output
-    return proc.returncode, output
 
 
 def _failed(output: str) -> dict[str, str]:
@@ -89,7 +74,7 @@ def test_a_scheduler_address_that_does_not_answer_as_dask_is_one_line(
     make_image_folder(tmp_path / "seq", n=3)
     with _fake_scheduler(reply) as address:
         t0 = time.monotonic()
-        code, output = colonlight(
+        code, output = run_colonlight(
             "enhance", str(tmp_path / "seq"), "-o", str(tmp_path / "out"), "--cluster", address, *NONE,
             env={"COLONLIGHT_CLUSTER_TIMEOUT": "1"},
         )  # fmt: skip
@@ -107,7 +92,7 @@ def test_a_cluster_timeout_that_is_no_number_of_seconds_is_one_line(tmp_path: Pa
     A usage error (exit status 2), as a bad COLONLIGHT_FPS or COLONLIGHT_MAX_GAP_FRAMES is (it was 1)."""
     pytest.importorskip("distributed")
     make_image_folder(tmp_path / "seq", n=3)
-    code, output = colonlight(
+    code, output = run_colonlight(
         "enhance", str(tmp_path / "seq"), "-o", str(tmp_path / "out"), "--cluster", "tcp://127.0.0.1:1", *NONE,
         env={"COLONLIGHT_CLUSTER_TIMEOUT": value},
     )  # fmt: skip
@@ -129,7 +114,7 @@ def test_frames_too_wide_for_the_video_fail_that_clip_alone(tmp_path: Path) -> N
         assert cv2.imwrite(str(wide / f"f{i}.png"), row)
     make_clip(tmp_path / "in" / "ok.mp4", 12)
     out = tmp_path / "out"
-    code, output = colonlight("enhance", str(tmp_path / "in"), "-o", str(out), "--video", *NONE)
+    code, output = run_colonlight("enhance", str(tmp_path / "in"), "-o", str(out), "--video", *NONE)
     assert code == 1, output
     assert _failed(output)[str(wide)].endswith(
         "frames of 16386x2 are too large for enhanced.mp4: H.264 takes at most 16384 pixels a side "
@@ -138,7 +123,7 @@ def test_frames_too_wide_for_the_video_fail_that_clip_alone(tmp_path: Path) -> N
     entries = {e["clip"]: e["status"] for e in json.loads((out / "manifest.json").read_text())["clips"]}
     assert entries == {"wide": "failed", "ok": "done"}
     assert not (out / "wide").exists() and (out / "ok" / "enhanced.mp4").is_file()
-    code, output = colonlight("enhance", str(wide), "-o", str(tmp_path / "frames-only"), *NONE)
+    code, output = run_colonlight("enhance", str(wide), "-o", str(tmp_path / "frames-only"), *NONE)
     assert code == 0, output
 
 
@@ -162,7 +147,7 @@ def test_a_cluster_that_loses_its_workers_then_its_scheduler_mid_batch(tmp_path:
     make_clip(videos / "long.mp4", n_frames=500, fps=25, size=(320, 240))
     make_clip(videos / "short.mp4", n_frames=40, fps=25, size=(160, 120))
     reference = tmp_path / "reference"
-    code, output = colonlight("enhance", str(videos), "-o", str(reference), *NONE)
+    code, output = run_colonlight("enhance", str(videos), "-o", str(reference), *NONE)
     assert code == 0, output
     out = tmp_path / "out"
     args = ("enhance", str(videos), "-o", str(out), *NONE)
@@ -222,6 +207,6 @@ def test_a_cluster_that_loses_its_workers_then_its_scheduler_mid_batch(tmp_path:
     finally:
         cluster.close()  # its worker, which ran on without the scheduler, too
 
-    code, output = colonlight(*args)
+    code, output = run_colonlight(*args)
     assert code == 0, output
     assert output_bytes(out) == output_bytes(reference)

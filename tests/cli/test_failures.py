@@ -14,6 +14,8 @@ from colonlight_cli.failures import FAILED, USAGE, ends_command
 
 from colonlight import InputError, OutputError
 
+from ..commands import PLAIN_CONSOLE
+
 
 def colonlight(*args: object) -> tuple[int, str]:
     """Exit code and stderr of ``colonlight ARGS`` run as a real process."""
@@ -23,7 +25,7 @@ def colonlight(*args: object) -> tuple[int, str]:
         text=True,
         timeout=120,
         check=False,
-        env={**os.environ, "COLUMNS": "400", "NO_COLOR": "1", "TERM": "dumb"},
+        env={**os.environ, **PLAIN_CONSOLE},
     )
     return proc.returncode, proc.stderr
 

@@ -7,38 +7,18 @@ or one line naming the file and the cause, never a traceback; the rest of the ba
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 
+from ..commands import run_colonlight
 from ..media import make_clip, needs_ffmpeg
 
 pytestmark = [needs_ffmpeg, pytest.mark.timeout(300)]
 
 NONE = ("--method", "none", "-q", "-j", "1")
 SHIPPED = Path(__file__).resolve().parents[2] / "colonlight" / "weights" / "colonlight-rnn"
-
-
-def colonlight(*args: str, cwd: Path | None = None) -> tuple[int, str]:
-    """Run ``colonlight ARGS`` as a real process; its exit code and its output (stdout and stderr), checked to
-    hold no traceback."""
-    env = {**os.environ, "COLUMNS": "400", "NO_COLOR": "1", "TERM": "dumb"}
-    proc = subprocess.run(
-        [sys.executable, "-m", "colonlight_cli.main", *args],
-        capture_output=True,
-        text=True,
-        timeout=240,
-        check=False,
-        cwd=cwd,
-        env=env,
-    )
-    output = proc.stdout + proc.stderr
-    assert "Traceback" not in output, output
-    return proc.returncode, output
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +33,7 @@ def test_a_pixel_cap_past_libavcodecs_int_range_still_decodes(videos: Path, tmp_
     """``--max-pixels`` above INT_MAX went to libavcodec's ``max_pixels`` (an int option) as it was: refused
     there, every frame of every clip was refused too, and each clip failed as "no decodable video frames"."""
     out = tmp_path / "out"
-    code, output = colonlight("enhance", str(videos), "-o", str(out), "--max-pixels", str(10**12), *NONE)
+    code, output = run_colonlight("enhance", str(videos), "-o", str(out), "--max-pixels", str(10**12), *NONE)
     assert code == 0, output
     entries = json.loads((out / "manifest.json").read_text())["clips"]
     assert sorted((e["clip"], e["status"]) for e in entries) == [("a", "done"), ("b", "done")]
@@ -64,11 +44,11 @@ def test_an_fps_that_rounds_to_zero_is_a_usage_error(videos: Path, tmp_path: Pat
     1001) and failed every clip with "frame rate must be positive, got 1e-09"."""
     for fps in ("1e-9", "0.0004"):
         out = tmp_path / f"out-{fps}"
-        code, output = colonlight("enhance", str(videos), "-o", str(out), "--fps", fps, *NONE)
+        code, output = run_colonlight("enhance", str(videos), "-o", str(out), "--fps", fps, *NONE)
         assert code == 2, output
         assert "--fps" in output and "1/1001" in output, output
         assert not out.exists(), output
-    code, output = colonlight("enhance", str(videos), "-o", str(tmp_path / "slow"), "--fps", "0.001", *NONE)
+    code, output = run_colonlight("enhance", str(videos), "-o", str(tmp_path / "slow"), "--fps", "0.001", *NONE)
     assert code == 1 and "span too short a time for 0.001 fps" in output, output  # accepted, then too short
 
 
@@ -88,7 +68,7 @@ def test_train_refuses_numbers_no_run_can_use_before_any_work(videos: Path, tmp_
         ("--synthetic-seed", "-1"),
     ]
     for flag, value in bad:
-        code, output = colonlight("train", str(videos), "-o", str(out), "--epochs", "1", flag, value)
+        code, output = run_colonlight("train", str(videos), "-o", str(out), "--epochs", "1", flag, value)
         assert code == 2, (flag, value, output)
         assert flag in output, (flag, value, output)
         assert not out.exists(), (flag, value, output)
@@ -115,7 +95,7 @@ def test_a_model_card_that_is_not_a_card_is_one_line(videos: Path, tmp_path: Pat
         card = {**shipped, **card}
     (tmp_path / "w.json").write_text(json.dumps(card))
     out = tmp_path / "out"
-    code, output = colonlight("enhance", str(videos), "-o", str(out), "-w", str(weights), "-q", "-j", "1")
+    code, output = run_colonlight("enhance", str(videos), "-o", str(out), "-w", str(weights), "-q", "-j", "1")
     assert code == 2, output
     lines = [line for line in output.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith(f"error: {tmp_path / 'w.json'}: ") and says in lines[0], output
@@ -127,12 +107,12 @@ def test_synth_refuses_absurd_values_and_an_output_that_is_a_file(tmp_path: Path
     negative seed ended in tracebacks; an output that is a file in a NotADirectoryError traceback."""
     small = ("--frames", "3", "--width", "64", "--height", "48", "--no-video")
     for flag, value in [("--fps", "inf"), ("--fps", "1e9"), ("--width", "100000"), ("--seed", "-1")]:
-        code, output = colonlight("synth", str(tmp_path / "s"), *small, flag, value)
+        code, output = run_colonlight("synth", str(tmp_path / "s"), *small, flag, value)
         assert code == 2 and flag in output, (flag, value, output)
         assert not (tmp_path / "s").exists()
     afile = tmp_path / "afile"
     afile.write_text("x")
-    code, output = colonlight("synth", str(afile), *small)
+    code, output = run_colonlight("synth", str(afile), *small)
     assert code == 1, output
     lines = [line for line in output.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith(f"error: {afile}") and "Not a directory" in lines[0], output
@@ -149,7 +129,7 @@ def test_evaluate_to_an_output_that_is_a_file_stops_before_any_work(videos: Path
     afile = tmp_path / "afile"
     afile.write_text("x")
     for out in (afile, afile / "sub"):
-        code, output = colonlight("evaluate", str(videos), "-o", str(out), "--methods", "none", "--no-colmap", "-q")
+        code, output = run_colonlight("evaluate", str(videos), "-o", str(out), "--methods", "none", "--no-colmap", "-q")
         assert code == 2, output
         lines = [line for line in output.splitlines() if line.strip()]
         assert len(lines) == 1 and lines[0].startswith(f"error: {out}: ") and "file" in lines[0], output
@@ -167,7 +147,7 @@ def test_an_output_name_too_long_for_the_file_system_fails_that_clip_alone(tmp_p
     for workers in ("1", "2"):
         out = tmp_path / f"out{workers}"
         args = ("--method", "none", "-q", "-j", workers)
-        code, output = colonlight("enhance", str(first), str(second), str(other), "-o", str(out), *args)
+        code, output = run_colonlight("enhance", str(first), str(second), str(other), "-o", str(out), *args)
         assert code == 1, output
         failed = [line for line in output.splitlines() if line.startswith("failed")]
         assert len(failed) == 1 and str(second) in failed[0] and "File name too long" in failed[0], output
@@ -185,7 +165,7 @@ def test_a_cluster_address_without_a_port_is_one_line_at_once(videos: Path, tmp_
     pytest.importorskip("distributed")
     for address in ("garbage", "tcp://host", "tcp://host:port"):
         t0 = time.monotonic()
-        code, output = colonlight("enhance", str(videos), "-o", str(tmp_path / "out"), "--cluster", address, *NONE)
+        code, output = run_colonlight("enhance", str(videos), "-o", str(tmp_path / "out"), "--cluster", address, *NONE)
         assert code == 1, output
         lines = [line for line in output.splitlines() if line.strip()]
         assert lines == [lines[0]] and "is not a Dask scheduler address" in lines[0] and address in lines[0], output
@@ -196,6 +176,6 @@ def test_weights_that_are_a_folder_say_so(videos: Path, tmp_path: Path) -> None:
     """``-w DIR`` said "no such checkpoint file" of a folder that exists."""
     folder = tmp_path / "weights.safetensors"
     folder.mkdir()
-    code, output = colonlight("enhance", str(videos), "-o", str(tmp_path / "out"), "-w", str(folder), "-q")
+    code, output = run_colonlight("enhance", str(videos), "-o", str(tmp_path / "out"), "-w", str(folder), "-q")
     assert code == 2, output
     assert output.strip() == f"error: {folder}: a folder, not a checkpoint file", output

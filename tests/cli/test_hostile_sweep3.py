@@ -27,6 +27,7 @@ from typer.testing import CliRunner
 
 from colonlight import ColonlightError
 
+from ..commands import PLAIN_CONSOLE
 from ..media import make_clip, needs_ffmpeg
 
 pytestmark = [needs_ffmpeg, pytest.mark.timeout(120)]
@@ -40,7 +41,7 @@ TINY = ("--epochs", "1", "--size", "16", *BASE)
 def colonlight(*args: str) -> tuple[int, str]:
     """Exit code and output of ``colonlight ARGS``, as the console script gives them: an expected failure (a
     ColonlightError) is one ``error:`` line and exit 1; anything else escaping is a bug (the test fails)."""
-    result = CliRunner().invoke(app, list(args), env={"COLUMNS": "400", "NO_COLOR": "1", "TERM": "dumb"})
+    result = CliRunner().invoke(app, list(args), env=PLAIN_CONSOLE)
     if isinstance(result.exception, ColonlightError):
         return 1, result.output + f"error: {result.exception}\n"
     assert result.exception is None or isinstance(result.exception, SystemExit), result.output

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from ..commands import run_colonlight
 from ..media import make_clip, needs_ffmpeg
-from .test_hostile_sweep2 import colonlight
 
 pytestmark = [needs_ffmpeg, pytest.mark.timeout(300)]
 
@@ -39,7 +39,7 @@ def test_a_model_card_nested_too_deep_is_one_line(clip: Path, tmp_path: Path) ->
     weights.write_bytes(SHIPPED.with_suffix(".safetensors").read_bytes())
     (tmp_path / "w.json").write_text(DEEP)
     out = tmp_path / "out"
-    code, output = colonlight("enhance", str(clip), "-o", str(out), "-w", str(weights), "-q", "-j", "1")
+    code, output = run_colonlight("enhance", str(clip), "-o", str(out), "-w", str(weights), "-q", "-j", "1")
     assert code == 2, output
     lines = [line for line in output.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith(f"error: {tmp_path / 'w.json'}: unreadable model card"), output
@@ -59,7 +59,7 @@ def test_a_damaged_record_in_the_output_folder_is_redone_not_fatal(
     out = tmp_path / "out"
     (out / where).parent.mkdir(parents=True, exist_ok=True)
     (out / where).write_text(content)
-    code, output = colonlight("enhance", str(clip), "-o", str(out), *GAMMA)
+    code, output = run_colonlight("enhance", str(clip), "-o", str(out), *GAMMA)
     assert code == 0, output
     assert clips_of(out) == {"a": "done"}
     assert json.loads((out / "a" / "gammas.json").read_text())["frame_count"] > 0
@@ -77,7 +77,7 @@ def test_clips_named_like_the_manifest_do_not_take_its_place(tmp_path: Path) -> 
     lock_named = make_clip(tmp_path / ".colonlight.lock.mp4", 8, size=(64, 48), first_index=150)
     out = tmp_path / "out"
     for _ in range(2):  # a rerun finds everything recorded
-        code, output = colonlight("enhance", str(videos), str(lock_named), "-o", str(out), *GAMMA)
+        code, output = run_colonlight("enhance", str(videos), str(lock_named), "-o", str(out), *GAMMA)
         assert code == 1, output  # the clip in the folder named manifest.json
         assert (out / "manifest.json").is_file()
         assert clips_of(out) == {
@@ -98,7 +98,7 @@ def test_export_onto_a_fifo_leaves_it_alone(tmp_path: Path) -> None:
     file holding the graph, and wrote ``/dev/null.json`` beside it."""
     fifo = tmp_path / "graph.onnx"
     os.mkfifo(fifo)
-    code, output = colonlight("export", "-o", str(fifo))
+    code, output = run_colonlight("export", "-o", str(fifo))
     assert code == 1, output
     lines = [line for line in output.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith(f"error: {fifo}: not a regular file"), output

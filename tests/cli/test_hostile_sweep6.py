@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from ..commands import run_colonlight
 from ..media import make_clip, needs_ffmpeg
-from .test_hostile_sweep2 import colonlight
 
 pytestmark = [needs_ffmpeg, pytest.mark.timeout(300)]
 
@@ -37,7 +37,7 @@ def clip(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.mark.parametrize("timeout", ["inf", "1e308"])
 def test_a_stream_timeout_past_any_thread_wait_is_a_usage_error(clip: Path, tmp_path: Path, timeout: str) -> None:
     out = tmp_path / "live"
-    code, output = colonlight("stream", str(clip), "-o", str(out), "-m", "gamma", "--timeout", timeout)
+    code, output = run_colonlight("stream", str(clip), "-o", str(out), "-m", "gamma", "--timeout", timeout)
     assert code == 2, output
     assert "timeout must be a number of seconds above 0 and at most 1000000000" in output, output
     assert not out.exists()
@@ -55,7 +55,7 @@ def test_float_tiff_frames_with_nan_or_one_channel_are_enhanced_quietly(clip: Pa
         assert cv2.imwrite(str(nan / f"{i}.tif"), bgr)
         Image.fromarray(np.full((48, 64), 0.3 + 0.1 * i, np.float32), mode="F").save(grey / f"{i}.tif")
     out = tmp_path / "out"
-    code, output = colonlight("enhance", str(inputs), str(clip), "-o", str(out), *GAMMA)
+    code, output = run_colonlight("enhance", str(inputs), str(clip), "-o", str(out), *GAMMA)
     assert code == 0, output
     lines = [line for line in output.splitlines() if line.startswith(("done", "failed"))]
     assert sorted(line.split()[:2][1].rstrip(":") for line in lines) == ["a", "grey", "nan"], output
@@ -68,7 +68,7 @@ def test_a_camera_file_in_other_digits_is_one_line_before_any_work(clip: Path, t
     camera = tmp_path / "cameras.txt"
     camera.write_text("1 PINHOLE ٦٤ ٤٨ 50 50 32 24\n", encoding="utf-8")  # 64 48 in Arabic-Indic digits
     out = tmp_path / "out"
-    code, output = colonlight("enhance", str(clip), "-o", str(out), "--camera", str(camera), *GAMMA)
+    code, output = run_colonlight("enhance", str(clip), "-o", str(out), "--camera", str(camera), *GAMMA)
     assert code == 2, output
     lines = [line for line in output.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith(f"error: {camera}: not a valid COLMAP cameras.txt"), output

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import functools
 import json
-import os
 import struct
 import subprocess
 import sys
@@ -25,6 +24,7 @@ import pytest
 from colonlight_cli.main import app
 from typer.testing import CliRunner
 
+from ..commands import colonlight_env
 from ..media import X264, ffmpeg_exe, ffmpeg_fps_indices, ffmpeg_frames, make_clip, needs_ffmpeg, read_index
 
 pytestmark = [needs_ffmpeg, pytest.mark.timeout(120)]
@@ -136,8 +136,7 @@ def test_stream_reads_a_file_from_the_same_video_stream(tmp_path: Path) -> None:
     clip, big = make_two_stream_clip(tmp_path, "mkv")
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "colonlight_cli.main", "stream", str(clip), "-o", str(out), "--method", "none"]
-    env = {k: v for k, v in os.environ.items() if not k.startswith("COLONLIGHT_")} | {"COLONLIGHT_DEVICE": "cpu"}
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=90, check=False)
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=colonlight_env(), timeout=90, check=False)
     assert proc.returncode == 0, proc.stderr
     frames = [cv2.imread(str(f)) for f in sorted((out / "frames").iterdir())]
     assert {f.shape for f in frames} == {(96, 128, 3)}

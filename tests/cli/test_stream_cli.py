@@ -20,7 +20,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ..media import X264, ffmpeg_exe, ffmpeg_fps_indices, index_frame, make_clip, needs_ffmpeg, read_index
+from ..commands import colonlight_env
+from ..media import (
+    X264,
+    ffmpeg_decoded,
+    ffmpeg_exe,
+    ffmpeg_fps_indices,
+    index_frame,
+    make_clip,
+    needs_ffmpeg,
+    read_index,
+)
 from ..ports import free_port
 
 pytestmark = needs_ffmpeg
@@ -31,12 +41,6 @@ SRC_FPS = 30
 
 def _colonlight(*args: str) -> list[str]:
     return [sys.executable, "-m", "colonlight_cli.main", "stream", *args]
-
-
-def _env() -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("COLONLIGHT_")}
-    env.update({"COLONLIGHT_DEVICE": "cpu", "PYTHONUNBUFFERED": "1"})
-    return env
 
 
 def _ffmpeg(*args: str, **kw: object) -> subprocess.Popen[bytes]:
@@ -130,7 +134,7 @@ def test_udp_mpegts_stream(tmp_path: Path, live_clip: Path, random_weights: Path
     out = tmp_path / "out"
     proc = subprocess.Popen(
         _colonlight(f"udp://127.0.0.1:{port}", "-o", str(out), "--timeout", "1.5", "--weights", str(random_weights)),
-        env=_env(),
+        env=colonlight_env(),
         stderr=subprocess.PIPE,
         stdout=subprocess.DEVNULL,
     )
@@ -188,7 +192,7 @@ def test_http_source_that_stops_and_comes_back_reconnects_with_state_kept(
             "--weights",
             str(random_weights),
         ),
-        env=_env(),
+        env=colonlight_env(),
         stderr=subprocess.PIPE,
         stdout=subprocess.DEVNULL,
     )
@@ -238,7 +242,7 @@ def _rtsp_listener(url: str, out: Path, weights: Path, *extra: str) -> tuple[sub
     """colonlight as the RTSP server an encoder publishes to (``rtsp_flags=listen``), over FFmpeg's RTSP demuxer."""
     proc = subprocess.Popen(
         _colonlight(url, "--input-option", "rtsp_flags=listen", "-o", str(out), "--weights", str(weights), *extra),
-        env=_env(),
+        env=colonlight_env(),
         stderr=subprocess.PIPE,
         stdout=subprocess.DEVNULL,
     )
@@ -354,7 +358,7 @@ def test_stdin_pipe_in_y4m_out(tmp_path: Path, live_clip: Path, fps_choice: list
     r, w = os.pipe()
     proc = subprocess.Popen(
         _colonlight("-", "--pipe", "y4m", "-o", str(out), "-m", "none", "--no-frames"),
-        env=_env(),
+        env=colonlight_env(),
         stdin=r,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -377,32 +381,12 @@ def test_stdin_pipe_in_y4m_out(tmp_path: Path, live_clip: Path, fps_choice: list
 def test_file_to_mpegts_pipe(tmp_path: Path, live_clip: Path, fps_choice: list[int]) -> None:
     proc = subprocess.run(
         _colonlight(str(live_clip), "--pipe", "mpegts", "-m", "none", "-q"),
-        env=_env(),
+        env=colonlight_env(),
         capture_output=True,
         timeout=120,
     )
     assert proc.returncode == 0, proc.stderr.decode()
-    decoded = subprocess.run(
-        [
-            ffmpeg_exe(),
-            "-hide_banner",
-            "-loglevel",
-            "error",
-            "-f",
-            "mpegts",
-            "-i",
-            "-",
-            "-f",
-            "rawvideo",
-            "-pix_fmt",
-            "rgb24",
-            "-",
-        ],
-        input=proc.stdout,
-        capture_output=True,
-        check=True,
-    )
-    frames = np.frombuffer(decoded.stdout, np.uint8).reshape(-1, 96, 128, 3)
+    frames = ffmpeg_decoded(proc.stdout, "mpegts", 128, 96)
     assert [read_index(f) for f in frames] == fps_choice  # a file read as fast as possible: no frame dropped
 
 
@@ -435,7 +419,7 @@ def test_slow_consumer_drops_counted_memory_flat(tmp_path: Path) -> None:
     r, w = os.pipe()
     proc = subprocess.Popen(
         _colonlight("-", "--pipe", "y4m", "-o", str(out), "--no-frames", "-m", "none"),
-        env=_env(),
+        env=colonlight_env(),
         stdin=r,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -476,7 +460,7 @@ def test_file_stream_matches_enhance(tmp_path: Path, live_clip: Path) -> None:
     torch.set_num_threads(1)  # as the CLI runs the small network (two spinning OpenMP threads crawl on a busy machine)
     out = tmp_path / "stream"
     proc = subprocess.run(
-        _colonlight(str(live_clip), "-o", str(out), "-q"), env=_env(), capture_output=True, timeout=120
+        _colonlight(str(live_clip), "-o", str(out), "-q"), env=colonlight_env(), capture_output=True, timeout=120
     )
     assert proc.returncode == 0, proc.stderr.decode()
     try:
@@ -519,7 +503,7 @@ def test_a_bordered_stream_is_enhanced_inside_its_field_of_view(tmp_path: Path) 
         proc = subprocess.run(
             _colonlight(str(clip), "-o", str(out), "-q", "--fps", "0", "--format", "png", "--content", content)
             + ["--method", "gamma", "--gamma", "0.5"],
-            env=_env(),
+            env=colonlight_env(),
             capture_output=True,
             timeout=120,
         )
@@ -547,14 +531,14 @@ def test_absent_device_and_refused_connection_are_one_line_errors(tmp_path: Path
         (f"tcp://127.0.0.1:{free_port(ports=PORTS)}", "cannot open (Connection refused)"),
     ):
         proc = subprocess.run(
-            _colonlight(src, "-o", str(out), "-m", "none"), env=_env(), capture_output=True, timeout=60
+            _colonlight(src, "-o", str(out), "-m", "none"), env=colonlight_env(), capture_output=True, timeout=60
         )
         err = proc.stderr.decode()
         assert proc.returncode == 1 and cause in err and "Traceback" not in err, err
         assert len([line for line in err.splitlines() if line.startswith("error:")]) == 1
         assert "frames in" not in err  # no summary of a stream that never started
         assert not out.exists()  # nothing written for a source that never delivered
-    listed = subprocess.run(_colonlight("--list-devices"), env=_env(), capture_output=True, timeout=60)
+    listed = subprocess.run(_colonlight("--list-devices"), env=colonlight_env(), capture_output=True, timeout=60)
     assert listed.returncode == 0
     devices = sorted(Path("/dev").glob("video*"))
     assert (b"no capture devices" in listed.stderr) == (not devices)
@@ -563,15 +547,20 @@ def test_absent_device_and_refused_connection_are_one_line_errors(tmp_path: Path
 def test_outputs_of_an_earlier_stream_are_not_mixed(tmp_path: Path, live_clip: Path) -> None:
     out = tmp_path / "out"
     args = (str(live_clip), "-o", str(out), "-m", "none", "-q")
-    assert subprocess.run(_colonlight(*args), env=_env(), capture_output=True, timeout=60).returncode == 0
-    again = subprocess.run(_colonlight(*args), env=_env(), capture_output=True, timeout=60)
+    assert subprocess.run(_colonlight(*args), env=colonlight_env(), capture_output=True, timeout=60).returncode == 0
+    again = subprocess.run(_colonlight(*args), env=colonlight_env(), capture_output=True, timeout=60)
     assert again.returncode == 2 and b"already holds a stream's outputs" in again.stderr  # a usage error
     assert (
-        subprocess.run(_colonlight(*args, "--overwrite"), env=_env(), capture_output=True, timeout=60).returncode == 0
+        subprocess.run(
+            _colonlight(*args, "--overwrite"), env=colonlight_env(), capture_output=True, timeout=60
+        ).returncode
+        == 0
     )
     afile = tmp_path / "afile"
     afile.write_text("mine")
-    proc = subprocess.run(_colonlight(str(live_clip), "-o", str(afile), "-m", "none"), env=_env(), capture_output=True)
+    proc = subprocess.run(
+        _colonlight(str(live_clip), "-o", str(afile), "-m", "none"), env=colonlight_env(), capture_output=True
+    )
     assert proc.returncode == 2 and b"is a file, not a folder" in proc.stderr, proc.stderr  # a usage error
     assert afile.read_text() == "mine" and b"Traceback" not in proc.stderr
 
@@ -594,7 +583,7 @@ def test_realtime_file_is_paced_at_its_own_rate(tmp_path: Path, live_clip: Path)
     out = tmp_path / "out"
     proc = subprocess.run(
         _colonlight(str(live_clip), "--realtime", "-o", str(out), "-m", "none", "--no-frames", "-q"),
-        env=_env(),
+        env=colonlight_env(),
         capture_output=True,
         timeout=120,
     )
@@ -629,7 +618,7 @@ def test_raw_h264_on_stdin_without_timestamps(tmp_path: Path, live_clip: Path, f
     with open(raw, "rb") as fh:
         proc = subprocess.run(
             _colonlight("-", "-o", str(out), "-m", "none", "--drop", "never", "-q"),
-            env=_env(),
+            env=colonlight_env(),
             stdin=fh,
             capture_output=True,
             timeout=120,

@@ -44,7 +44,7 @@ from colonlight import ClipOptions, MethodSpec, create_method, discover, run_bat
 from colonlight.errors import DeviceError, InputError, OptionError
 from colonlight.frames import iter_image_folder
 
-from ..cli.test_hostile_sweep2 import colonlight as run_colonlight
+from ..commands import run_colonlight
 from ..media import flat_png, make_clip, needs_ffmpeg
 
 BROKEN = {

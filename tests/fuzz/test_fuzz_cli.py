@@ -10,7 +10,6 @@ output folder passes :func:`checks.check_batch`. ``COLONLIGHT_FUZZ_EXAMPLES=500`
 from __future__ import annotations
 
 import shutil
-import sys
 import traceback
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -23,6 +22,7 @@ from typer.testing import CliRunner
 
 from colonlight.pipeline import peak_rss_bound
 
+from ..commands import colonlight_command
 from .checks import bounded, check_batch, run_measured
 from .corrupt import FAMILIES, SEED_OUTPUT_FRAMES, Case, Cut, fuzz_settings
 
@@ -127,11 +127,6 @@ def test_mixed_damage(case: Case, video: bool, seeds: dict[str, Path], case_dir:
     check_case(case, video, seeds, case_dir)
 
 
-def colonlight_cmd() -> list[str]:
-    exe = Path(sys.executable).parent / "colonlight"
-    return [str(exe)] if exe.exists() else [sys.executable, "-m", "colonlight_cli.main"]
-
-
 @fuzz_settings(3)
 @given(case=FAMILIES["mixed"])
 def test_real_process_within_the_memory_bound(
@@ -142,7 +137,7 @@ def test_real_process_within_the_memory_bound(
     with case_dir() as d:
         inputs, clips = lay_out(case, seeds, d)
         out = d / "out"
-        code, stderr, peak = run_measured([*colonlight_cmd(), *enhance_args([inputs], out, True)], CASE_SECONDS)
+        code, stderr, peak = run_measured(colonlight_command(*enhance_args([inputs], out, True)), CASE_SECONDS)
         check_batch(out, stderr, code, clips, True, must_succeed={"good"})
         bound = peak_rss_bound(256, 256, workers=1, video=True)
         assert peak <= bound, f"peak RSS {peak / 2**20:.0f} MiB > bound {bound / 2**20:.0f} MiB for {case}"

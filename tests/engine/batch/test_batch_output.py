@@ -19,6 +19,7 @@ import pytest
 
 from colonlight.atomic import TMP_MARK
 
+from ...commands import colonlight_command
 from ...filesystems import mounted_tmpfs
 from ...media import make_clip, make_noise_clip
 
@@ -26,9 +27,7 @@ GAMMA = ("--method", "gamma", "-q")  # a real method that needs no model: these 
 
 
 def colonlight(*args: object, timeout: float = 300, **kw: object) -> subprocess.CompletedProcess[str]:
-    exe = Path(sys.executable).parent / "colonlight"
-    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "colonlight_cli.main"]
-    return subprocess.run([*cmd, *map(str, args)], capture_output=True, text=True, timeout=timeout, **kw)  # type: ignore[call-overload]
+    return subprocess.run(colonlight_command(*args), capture_output=True, text=True, timeout=timeout, **kw)  # type: ignore[call-overload]
 
 
 def one_error_line(stderr: str) -> str:
@@ -141,10 +140,8 @@ def test_two_batches_on_one_output_folder(tmp_path: Path) -> None:
     make_clip(first / "a2.mp4", n_frames=1500, fps=30, size=(64, 48))  # 50 s of video: keeps the first busy
     make_clip(second / "b1.mp4", n_frames=20, fps=25)
     out = tmp_path / "out"
-    exe = Path(sys.executable).parent / "colonlight"
-    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "colonlight_cli.main"]
     a = subprocess.Popen(
-        [*cmd, "enhance", str(first), "-o", str(out), "--fps", "0", *GAMMA],
+        colonlight_command("enhance", str(first), "-o", str(out), "--fps", "0", *GAMMA),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

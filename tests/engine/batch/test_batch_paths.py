@@ -25,16 +25,12 @@ from colonlight.batch import MethodSpec, run_batch
 from colonlight.discovery import discover
 from colonlight.pipeline import ClipOptions
 
+from ...commands import colonlight_command
 from ...media import make_clip, make_image_folder
 
 runner = CliRunner()
 NON_UTF8 = os.fsdecode(b"caf\xe9")  # Latin-1 bytes: not valid UTF-8
 GAMMA = ("--method", "gamma", "-q")  # a real method that needs no model: these tests are about paths
-
-
-def colonlight() -> list[str]:
-    exe = Path(sys.executable).parent / "colonlight"
-    return [str(exe)] if exe.exists() else [sys.executable, "-m", "colonlight_cli.main"]
 
 
 def manifest_of(out: Path) -> dict[str, dict]:
@@ -112,7 +108,7 @@ def test_non_utf8_names_on_an_ascii_terminal(hostile: Path, tmp_path: Path) -> N
     make_clip(hostile / "clip ü.mov", n_frames=10, fps=25)
     env = {**os.environ, "PYTHONIOENCODING": "ascii:strict", "LC_ALL": "C", "COLUMNS": "200"}
     proc = subprocess.run(
-        [*colonlight(), "enhance", str(hostile), "-o", str(tmp_path / "out"), *GAMMA],
+        colonlight_command("enhance", hostile, "-o", tmp_path / "out", *GAMMA),
         capture_output=True,
         env=env,
         timeout=300,
@@ -146,7 +142,7 @@ def test_unreadable_folder_is_one_line_and_the_rest_is_done(tmp_path: Path) -> N
         if probe.returncode == 0:
             pytest.skip("cannot make a folder unreadable here (capabilities cannot be dropped)")
         proc = subprocess.run(
-            [*colonlight(), "enhance", str(root), "-o", str(out), *GAMMA],
+            colonlight_command("enhance", root, "-o", out, *GAMMA),
             preexec_fn=_drop_read_anything,
             capture_output=True,
             text=True,

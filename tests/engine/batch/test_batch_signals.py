@@ -23,17 +23,12 @@ import pytest
 
 from colonlight.atomic import TMP_MARK
 
+from ...commands import colonlight_command
 from ...media import make_clip
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc; PR_SET_PDEATHSIG is Linux's")
 
 INTERRUPTED = "error: interrupted; rerun the same command to resume"
-
-
-def command(*args: object) -> list[str]:
-    exe = Path(sys.executable).parent / "colonlight"
-    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "colonlight_cli.main"]
-    return [*cmd, *map(str, args)]
 
 
 @pytest.fixture(scope="module")
@@ -97,7 +92,7 @@ def wait_for_frames(out: Path, proc: subprocess.Popen[bytes], count: int, timeou
 def test_sigkill_of_the_batch_leaves_no_worker(long_clips: Path, tmp_path: Path) -> None:
     out = tmp_path / "out"
     proc = subprocess.Popen(
-        command("enhance", long_clips, "-o", out, "-j", "2", "--method", "gamma", "-q"),
+        colonlight_command("enhance", long_clips, "-o", out, "-j", "2", "--method", "gamma", "-q"),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
@@ -131,7 +126,9 @@ def test_the_generators_render_workers_die_with_it(tmp_path: Path, signum: signa
     workers must not go on rendering, orphaned, after the command is stopped."""
     out = tmp_path / "clips"
     proc = subprocess.Popen(
-        command("synth", out, "--clips", "40", "--frames", "40", "--width", "160", "--height", "128", "--workers", "2"),
+        colonlight_command(
+            "synth", out, "--clips", "40", "--frames", "40", "--width", "160", "--height", "128", "--workers", "2"
+        ),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
@@ -175,7 +172,9 @@ def test_interrupt_is_one_line_and_leaves_nothing_half_written(
     out = tmp_path / "out"
     weights = () if "gamma" in method else ("--weights", random_weights)
     args = ("enhance", long_clips, "-o", out, "-j", workers, *method, *weights, "-q")
-    proc = subprocess.Popen(command(*args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    proc = subprocess.Popen(
+        colonlight_command(*args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True
+    )
     try:
         wait_for_frames(out, proc, 25)
         children = descendants(proc.pid)
@@ -207,7 +206,7 @@ def test_interrupt_is_one_line_and_leaves_nothing_half_written(
     for clip in out.iterdir():
         if clip.is_dir() and not (clip / "gammas.json").exists():
             assert not (clip / "enhanced.mp4").exists()  # a video appears only complete
-    rerun = subprocess.run(command(*args), capture_output=True, text=True, timeout=300)
+    rerun = subprocess.run(colonlight_command(*args), capture_output=True, text=True, timeout=300)
     assert rerun.returncode == 0, rerun.stderr
     manifest = json.loads((out / "manifest.json").read_text())
     assert [c["status"] for c in manifest["clips"]] == ["done"] * 3
@@ -221,7 +220,7 @@ def test_a_clip_that_kills_its_worker_fails_alone(long_clips: Path, tmp_path: Pa
     out = tmp_path / "out"
     target = str(long_clips / "c1.mp4")
     proc = subprocess.Popen(
-        command("enhance", long_clips, "-o", out, "-j", "2", "--method", "gamma", "-q"),
+        colonlight_command("enhance", long_clips, "-o", out, "-j", "2", "--method", "gamma", "-q"),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

@@ -19,10 +19,9 @@ from colonlight.checkpoint import LoadedWeights, load_weights  # noqa: E402
 from colonlight.curves import IDENTITY_LUT
 from colonlight.methods.rnn import PRESAMPLE, RecurrentGammaMethod, head_correction  # noqa: E402
 from colonlight.onnx_export import export_onnx, onnx_sidecar_path  # noqa: E402
-from colonlight.sources import clip_frames  # noqa: E402
 from colonlight.tone_match import ToneMatcher
-from colonlight.video import VideoWriter  # noqa: E402
 
+from ...media import synthetic_clip_frames  # noqa: E402
 from ...networks import random_head_weights  # noqa: E402
 
 WIDTH, HEIGHT, FRAMES = 256, 208, 30
@@ -41,16 +40,7 @@ def host(cpp_host: Path) -> Path:
 @pytest.fixture(scope="module")
 def clip(tmp_path_factory: pytest.TempPathFactory) -> list[np.ndarray]:
     """A synthetic colonoscopy clip with its lighting changes, written as H.264 and decoded (RGB)."""
-    from colonlight.synth import SynthConfig, generate_clip
-
-    cfg = SynthConfig.sample(np.random.default_rng(5), split="train", width=WIDTH, height=HEIGHT)
-    path = tmp_path_factory.mktemp("clip") / "clip.mp4"
-    with VideoWriter(path, fps=18) as writer:
-        for i, f in enumerate(generate_clip(cfg, seed=5)):
-            if i == FRAMES:
-                break
-            writer.write(f.image)
-    frames = [f.image for f in clip_frames(path, fps=None)]
+    frames = synthetic_clip_frames(tmp_path_factory.mktemp("clip") / "clip.mp4", FRAMES, WIDTH, HEIGHT, seed=5)
     assert len(frames) == FRAMES and frames[0].shape == (HEIGHT, WIDTH, 3)
     return frames
 

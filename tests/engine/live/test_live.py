@@ -4,7 +4,6 @@ statistics, the y4m writer (read back by the ffmpeg binary), source parsing and 
 from __future__ import annotations
 
 import io
-import subprocess
 import threading
 import time
 from fractions import Fraction
@@ -21,7 +20,7 @@ from colonlight.live.source import parse_source, probe_device
 from colonlight.live.stats import LatencyStats
 from colonlight.video import FpsSelector
 
-from ...media import ffmpeg_exe, index_frame, needs_ffmpeg, read_index, vfr_times
+from ...media import ffmpeg_decoded, index_frame, needs_ffmpeg, read_index, vfr_times
 
 # ----------------------------------------------------------------------------------------------- frame choice
 
@@ -165,27 +164,7 @@ def test_y4m_stream_is_read_by_ffmpeg_frame_for_frame(tmp_path: Path) -> None:
     for i in range(5):
         pipe.write(i, index_frame(i * 3, 129, 97))  # odd sizes: padded to 130x98
     pipe.close()
-    proc = subprocess.run(
-        [
-            ffmpeg_exe(),
-            "-hide_banner",
-            "-loglevel",
-            "error",
-            "-f",
-            "yuv4mpegpipe",
-            "-i",
-            "-",
-            "-f",
-            "rawvideo",
-            "-pix_fmt",
-            "rgb24",
-            "-",
-        ],
-        input=buf.getvalue(),
-        capture_output=True,
-        check=True,
-    )
-    frames = np.frombuffer(proc.stdout, np.uint8).reshape(-1, 98, 130, 3)
+    frames = ffmpeg_decoded(buf.getvalue(), "yuv4mpegpipe", 130, 98)
     assert [read_index(f[:97, :129]) for f in frames] == [0, 3, 6, 9, 12]
     assert np.abs(frames[2, :97, :129].astype(int) - index_frame(6, 129, 97)).mean() < 3  # colours survive
     with pytest.raises(InputError, match="y4m stream started at 130x98"):

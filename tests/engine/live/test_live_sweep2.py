@@ -21,6 +21,7 @@ import av
 import cv2
 import pytest
 
+from ...commands import colonlight_env
 from ...filesystems import mounted_tmpfs
 from ...media import X264, ffmpeg_exe, index_frame, make_clip, make_noise_clip, needs_ffmpeg
 
@@ -28,11 +29,9 @@ pytestmark = [needs_ffmpeg, pytest.mark.timeout(120)]
 
 
 def _stream(*args: str, stdout: object = subprocess.DEVNULL, stdin: bytes | None = None) -> tuple[int, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("COLONLIGHT_")}
-    env.update({"COLONLIGHT_DEVICE": "cpu", "PYTHONUNBUFFERED": "1"})
     done = subprocess.run(
         [sys.executable, "-m", "colonlight_cli.main", "stream", *args, "-m", "none"],
-        env=env,
+        env=colonlight_env(),
         input=stdin,
         stdout=stdout,  # type: ignore[arg-type]
         stderr=subprocess.PIPE,
@@ -126,11 +125,9 @@ def _listening(port: int) -> bool:
 
 
 def _stream_proc(*args: str, stdout: object) -> subprocess.Popen[bytes]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("COLONLIGHT_")}
-    env.update({"COLONLIGHT_DEVICE": "cpu", "PYTHONUNBUFFERED": "1"})
     return subprocess.Popen(
         [sys.executable, "-m", "colonlight_cli.main", "stream", *args, "-m", "none"],
-        env=env,
+        env=colonlight_env(),
         stdout=stdout,  # type: ignore[arg-type]
         stderr=subprocess.PIPE,
     )

@@ -33,10 +33,9 @@ from colonlight.methods.rnn import (  # noqa: E402
 from colonlight.model import HEAD_OUTPUTS, GammaNet, State  # noqa: E402
 from colonlight.onnx_export import export_onnx, onnx_sidecar_path, read_sidecar  # noqa: E402
 from colonlight.onnx_step import cpu_session  # noqa: E402
-from colonlight.sources import clip_frames  # noqa: E402
 from colonlight.tone_match import DEFAULT_TONE_MATCH, SAMPLE_PIXELS
-from colonlight.video import VideoWriter  # noqa: E402
 
+from ...media import synthetic_clip_frames  # noqa: E402
 from ...networks import random_head_weights  # noqa: E402
 
 runner = CliRunner()
@@ -47,16 +46,7 @@ TOLERANCE = 1e-5
 @pytest.fixture(scope="module")
 def clip(tmp_path_factory: pytest.TempPathFactory) -> list[np.ndarray]:
     """A 100-frame synthetic colonoscopy clip (with its lighting disturbances), written as H.264 and decoded."""
-    from colonlight.synth import SynthConfig, generate_clip
-
-    cfg = SynthConfig.sample(np.random.default_rng(3), split="train", width=96, height=96)
-    path = tmp_path_factory.mktemp("clip") / "clip.mp4"
-    with VideoWriter(path, fps=18) as writer:
-        for i, f in enumerate(generate_clip(cfg, seed=3)):
-            if i == CLIP_FRAMES:
-                break
-            writer.write(f.image)
-    frames = [f.image for f in clip_frames(path, fps=None)]
+    frames = synthetic_clip_frames(tmp_path_factory.mktemp("clip") / "clip.mp4", CLIP_FRAMES, 96, 96, seed=3)
     assert len(frames) == CLIP_FRAMES
     return frames
 

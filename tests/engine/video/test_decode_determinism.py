@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import av
@@ -18,6 +17,7 @@ import pytest
 
 from colonlight.video import VideoWriter
 
+from ...commands import colonlight_command
 from ...media import index_frame, make_clip, needs_ffmpeg
 
 CORES = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
@@ -37,11 +37,6 @@ def _first_difference(a: Path, b: Path) -> str:
     return f"streams equal over {min(len(pa), len(pb))} packets ({len(pa)} vs {len(pb)}): the container differs"
 
 
-def _colonlight() -> list[str]:
-    exe = Path(sys.executable).parent / "colonlight"
-    return [str(exe)] if exe.exists() else [sys.executable, "-m", "colonlight_cli.main"]
-
-
 @needs_ffmpeg
 @needs_two_cores
 @pytest.mark.timeout(600)
@@ -50,20 +45,9 @@ def test_two_cli_runs_write_identical_videos(tmp_path: Path) -> None:
     outputs = []
     for name, cores in (("all", CORES), ("one", CORES[:1])):
         out = tmp_path / name
-        cmd = [
-            *_colonlight(),
-            "enhance",
-            str(clip),
-            "-o",
-            str(out),
-            "--method",
-            "gamma",
-            "--gamma",
-            "0.7",
-            "--video",
-            "--no-frames",
-            "-q",
-        ]
+        cmd = colonlight_command(
+            "enhance", clip, "-o", out, "--method", "gamma", "--gamma", "0.7", "--video", "--no-frames", "-q"
+        )
         proc = subprocess.run(
             cmd, capture_output=True, text=True, timeout=300, preexec_fn=lambda c=set(cores): os.sched_setaffinity(0, c)
         )

@@ -19,12 +19,8 @@ import pytest
 from colonlight.pipeline import peak_rss_bound
 from colonlight.video import FpsRun, FpsSelector, iter_video_frames
 
+from ...commands import colonlight_command
 from ...media import ffmpeg_fps_indices, make_vfr_clip, needs_ffmpeg, read_index
-
-
-def _colonlight() -> list[str]:
-    exe = Path(sys.executable).parent / "colonlight"
-    return [str(exe)] if exe.exists() else [sys.executable, "-m", "colonlight_cli.main"]
 
 
 def run_measured(cmd: list[str], timeout: float = 300) -> tuple[int, str, int]:
@@ -92,7 +88,7 @@ def test_cli_peak_memory_on_a_long_gap_stays_within_the_written_bound(tmp_path: 
     width, height = 1280, 720
     clip = make_vfr_clip(tmp_path / "gap.mp4", [0.0, 0.05, 12.0, 12.05], size=(width, height))
     out = tmp_path / "out"
-    cmd = [*_colonlight(), "enhance", str(clip), "-o", str(out), "--method", "none", "-f", "jpg", "--video", "-q"]
+    cmd = colonlight_command("enhance", clip, "-o", out, "--method", "none", "-f", "jpg", "--video", "-q")
     code, stderr, peak = run_measured(cmd)
     assert code == 0, stderr
     frames = sorted((out / "gap" / "frames").glob("*.jpg"))
