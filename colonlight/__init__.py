@@ -38,6 +38,7 @@ _EXPORTS: dict[str, str] = {
     "content_stream": "content",
     "find_content_area": "content",
     "check_mask_output": "content_mask",
+    "load_content_mask": "content_mask",
     "read_content_mask": "content_mask",
     "write_content_mask": "content_mask",
     "live_content_stream": "content",
@@ -117,7 +118,7 @@ if TYPE_CHECKING:
         parse_content,
         parse_content_mode,
     )
-    from .content_mask import check_mask_output, read_content_mask, write_content_mask
+    from .content_mask import check_mask_output, load_content_mask, read_content_mask, write_content_mask
     from .curves import apply_gamma, apply_lut, gamma_lut
     from .device import resolve_device
     from .discovery import VIDEO_SUFFIXES, PathProblem, discover, discover_clips, synthetic_folder_of
@@ -209,6 +210,7 @@ __all__ = [
     "iter_enhanced",
     "library_versions",
     "live_content_stream",
+    "load_content_mask",
     "load_weights",
     "method_for",
     "network_threads",

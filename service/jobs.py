@@ -22,7 +22,7 @@ from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import Any
 
-from colonlight import ClipOptions, ColonlightError, MethodSpec, VideoInfo
+from colonlight import DEFAULT_CONTENT, ClipOptions, ColonlightError, MethodSpec, VideoInfo
 
 from .admission import Admission, JobBoard
 from .errors import ApiError
@@ -32,14 +32,14 @@ from .metrics import Metrics
 from .model_status import ModelStatus, torch_threads
 from .probing import UploadProbe
 from .request_options import JobOptions, method_spec
-from .results import Results
+from .results import Results, mask_label, mask_setting
 from .runners import ClipRunner, ClusterRunner, LocalRunner, MethodCache
 from .settings import Settings
 from .store import JobRecord, JobStore
 from .sweeper import Sweeper
 from .sync_enhance import SyncEnhancer
 from .uploads import Upload
-from .workspace import Workspace
+from .workspace import MASK_NAME, Workspace
 
 __all__ = ["JOB_ID_PATTERN", "Admission", "JobManager"]
 
@@ -82,7 +82,9 @@ class JobManager:
             update={"fps": self.settings.fps if o.fps is None else o.fps, "method": o.method or self.settings.method}
         )
 
-    def clip_options(self, o: JobOptions, frames: bool | None = None) -> ClipOptions:
+    def clip_options(self, o: JobOptions, frames: bool | None = None, mask: Path | None = None) -> ClipOptions:
+        """The engine's clip options; ``mask``: an uploaded content mask in the job's folder, used as
+        ``colonlight enhance --content MASK`` uses one (read here, once)."""
         fps = self.settings.fps if o.fps is None else o.fps
         return ClipOptions(
             fps=fps or None,
@@ -90,7 +92,7 @@ class JobManager:
             video=True,
             format=o.format,
             quality=o.quality,
-            content=o.content,
+            content=o.content if mask is None else str(mask),
             max_gap_frames=self.settings.max_gap_frames,
         )
 
@@ -105,10 +107,14 @@ class JobManager:
         except ColonlightError as exc:
             raise ApiError(422, "validation_error", f"method {spec.name!r} cannot be used: {exc}") from None
 
-    def _plan(self, recorded: dict[str, Any]) -> tuple[MethodSpec, ClipOptions]:
-        """A job's recorded options as the engine's method and clip options."""
-        options = JobOptions(**recorded)
-        return self.method_spec(options), self.clip_options(options)
+    def _plan(self, recorded: dict[str, Any], job_dir: Path) -> tuple[MethodSpec, ClipOptions]:
+        """A job's recorded options as the engine's method and clip options; a recorded content mask (its upload
+        name and hash, :func:`.results.mask_setting`) is the one in the job's folder, there after a restart too."""
+        if mask_label(recorded) is None:
+            options = JobOptions(**recorded)
+            return self.method_spec(options), self.clip_options(options)
+        options = JobOptions(**{**recorded, "content": DEFAULT_CONTENT})
+        return self.method_spec(options), self.clip_options(options, mask=job_dir / MASK_NAME)
 
     # ------------------------------------------------------------------------------------------ life cycle
 
@@ -172,9 +178,15 @@ class JobManager:
     async def probe(self, upload: Upload) -> VideoInfo:
         return await self.probing.probe(upload)
 
+    async def check_mask(self, upload: Upload) -> None:
+        await self.probing.check_mask(upload)
+
     async def create_job(self, admission: Admission, upload: Upload, options: JobOptions) -> JobRecord:
         opts = self.resolved(options)
-        return await self.lifecycle.create(admission, upload, opts.model_dump(), opts.fps)
+        recorded = opts.model_dump()
+        if upload.mask is not None:  # recorded by its upload name and hash, never by its path on the server
+            recorded["content"] = mask_setting(upload.mask.filename, upload.mask.sha256)
+        return await self.lifecycle.create(admission, upload, recorded, opts.fps)
 
     def get(self, job_id: str) -> JobRecord | None:
         return self.lifecycle.get(job_id)

@@ -1,9 +1,10 @@
 """A job's life: created from a checked upload, queued on the runner, running (progress kept in memory and
 saved every second), finished ('succeeded' | 'failed'), deleted; and resumed after a restart.
 
-A job that fails loses its upload at once; its results (if any) are kept until the TTL. After a crash, jobs left
-'queued' or 'running' are resumed at the next start (the pipeline redoes a clip from scratch), unless one has
-already been started ``max_attempts`` times, in which case it is marked failed with the reason.
+A job that fails loses its upload (and its uploaded content mask) at once; its results (if any) are kept until
+the TTL. After a crash, jobs left 'queued' or 'running' are resumed at the next start (the pipeline redoes a clip
+from scratch; an uploaded content mask is kept in the job's folder for it), unless one has already been started
+``max_attempts`` times, in which case it is marked failed with the reason.
 """
 
 from __future__ import annotations
@@ -27,12 +28,12 @@ from .admission import Admission, JobBoard
 from .errors import ApiError, is_disk_full, storage_full
 from .memory import FrameCollector, release_free_memory
 from .metrics import Metrics
-from .results import label_source
+from .results import label_source, mask_label
 from .runners import DISK_FULL, NO_SPACE, ClipHooks, ClipRunner
 from .settings import Settings
 from .store import JobRecord, JobStore
 from .uploads import Upload, safe_suffix
-from .workspace import Workspace, remove
+from .workspace import MASK_NAME, Workspace, remove
 
 log = logging.getLogger("colonlight.service")
 
@@ -47,8 +48,9 @@ def new_job_id() -> str:
 
 class JobLifecycle:
     """Creates, runs, finishes, deletes and recovers jobs. ``store`` and ``runner`` are set when the server
-    starts; ``plan`` turns a job's recorded options into the engine's method and clip options (it raises
-    :class:`ApiError` or ``ValueError`` for options that are no longer valid)."""
+    starts; ``plan`` turns a job's recorded options (and its folder, which holds an uploaded content mask) into the
+    engine's method and clip options (it raises :class:`ApiError` or ``ValueError`` for options that are no
+    longer valid)."""
 
     def __init__(
         self,
@@ -58,7 +60,7 @@ class JobLifecycle:
         metrics: Metrics,
         collector: FrameCollector,
         limiter: anyio.CapacityLimiter,
-        plan: Callable[[dict[str, Any]], tuple[MethodSpec, ClipOptions]],
+        plan: Callable[[dict[str, Any], Path], tuple[MethodSpec, ClipOptions]],
     ) -> None:
         self.settings = settings
         self.workspace = workspace
@@ -83,6 +85,8 @@ class JobLifecycle:
         def place() -> int | None:
             job_dir.mkdir(parents=True)
             os.replace(upload.path, job_dir / input_name)
+            if upload.mask is not None:
+                os.replace(upload.mask.path, job_dir / MASK_NAME)
             return estimate_frames(job_dir / input_name, fps or None)
 
         try:
@@ -136,9 +140,9 @@ class JobLifecycle:
         hooks.started, hooks.frames = started, frames
         board.waiting(job_id)
         try:
-            spec, clip_opts = self.plan(rec.options)
+            spec, clip_opts = self.plan(rec.options, job_dir)
         except (ApiError, ValueError) as exc:  # options that were valid once but no longer are (settings changed)
-            self.fail(rec, getattr(exc, "message", str(exc)))
+            self.fail(rec, self._scrub(rec, job, getattr(exc, "message", str(exc))))
             board.end(job_id)
             return
         future = self.runner.submit(job, spec, clip_opts, hooks)
@@ -170,7 +174,7 @@ class JobLifecycle:
             return
         now = time.time()
         if outcome.status == "done":
-            outcome = label_source(outcome, job, rec.filename)
+            outcome = label_source(outcome, job, rec.filename, mask_label(rec.options))
         try:
             if outcome.status == "done":
                 ok = self.store.update(
@@ -184,7 +188,7 @@ class JobLifecycle:
                 )
                 self.metrics.observe_job("succeeded", outcome.seconds)
             else:
-                message = self.workspace.scrub(outcome.error or "failed", job.source, rec.filename)
+                message = self._scrub(rec, job, outcome.error or "failed")
                 if outcome.detail and outcome.detail not in ("stopped", DISK_FULL):
                     log.error("job %s: %s\n%s", job_id, message, outcome.detail)
                 if outcome.detail == DISK_FULL:
@@ -195,15 +199,28 @@ class JobLifecycle:
             log.error("job %s ended %s, but the job table could not record it: %s", job_id, outcome.status, exc)
             return
         if ok:
-            (self.workspace.job_dir(job_id) / rec.input_name).unlink(missing_ok=True)  # results kept, upload not
+            self._drop_upload(rec)  # results kept, upload not
         else:
             remove(self.workspace.job_dir(job_id))  # deleted meanwhile
         release_free_memory()  # what the clip's frames used goes back to the system, not to the next peak
 
+    def _scrub(self, rec: JobRecord, job: ClipJob, message: str) -> str:
+        """An engine message about the job with the upload names in place of the server's paths."""
+        mask = mask_label(rec.options)
+        return self.workspace.scrub(
+            message, job.source, rec.filename, None if mask is None else (job.source.parent / MASK_NAME, mask)
+        )
+
+    def _drop_upload(self, rec: JobRecord) -> None:
+        """Remove the job's uploaded files (the clip and its content mask); its results stay."""
+        job_dir = self.workspace.job_dir(rec.id)
+        (job_dir / rec.input_name).unlink(missing_ok=True)
+        (job_dir / MASK_NAME).unlink(missing_ok=True)
+
     def fail(self, rec: JobRecord, message: str, seconds: float | None = None) -> bool:
         """Mark the job failed and remove its upload now (whatever results it has are kept until the TTL)."""
         assert self.store is not None
-        (self.workspace.job_dir(rec.id) / rec.input_name).unlink(missing_ok=True)
+        self._drop_upload(rec)
         return self.store.update(rec.id, status="failed", error=message, finished_at=time.time(), seconds=seconds)
 
     def recover(self) -> None:
@@ -215,6 +232,8 @@ class JobLifecycle:
                 self.fail(rec, f"interrupted by a server stop after {rec.attempts} attempt(s); not retried")
             elif not source.is_file():
                 self.fail(rec, "interrupted by a server stop, and its upload is gone")
+            elif mask_label(rec.options) is not None and not (source.parent / MASK_NAME).is_file():
+                self.fail(rec, f"interrupted by a server stop, and its content mask {mask_label(rec.options)} is gone")
             else:
                 self.store.update(rec.id, status="queued", frames_done=0, note="resumed after a server restart")
                 self.board.readmit()

@@ -1,16 +1,18 @@
-"""Checking an upload before it is admitted: frames within the pixel cap (413), and a video at all (415)."""
+"""Checking an upload before it is admitted: frames within the pixel cap (413), a video at all (415), and its
+content mask, if one came with it, a mask the engine reads (422, 413 over the pixel cap)."""
 
 from __future__ import annotations
 
 import anyio
 
-from colonlight import ColonlightError, VideoInfo, probe_video
+from colonlight import ColonlightError, VideoInfo, load_content_mask, probe_video
+from colonlight.errors import FrameTooLargeError
 
 from .errors import ApiError
 from .header_probe import declared_frame_size
 from .metrics import Metrics
 from .settings import Settings
-from .uploads import Upload
+from .uploads import MaskUpload, Upload
 from .workspace import Workspace
 
 
@@ -51,3 +53,33 @@ class UploadProbe:
                 f"{upload.filename}: its frames are {width}x{height} ({width * height} pixels), over this "
                 f"server's limit of {cap} pixels a frame (COLONLIGHT_MAX_PIXELS)",
             )
+
+    async def check_mask(self, upload: Upload) -> None:
+        """Read the upload's content mask as the engine will (:func:`colonlight.load_content_mask`: JPEG, lossy
+        WebP, damaged PGM, colour or scene-less images are refused) and keep its SHA-256 on ``upload.mask``, the
+        hash the job records. 422 (413 over the pixel cap) with one line naming the mask by its upload name."""
+        mask = upload.mask
+        if mask is None:
+            return
+        try:
+            loaded = await anyio.to_thread.run_sync(load_content_mask, mask.path, limiter=self.limiter)
+        except FrameTooLargeError as exc:
+            self.metrics.inc("rejected", "too_many_pixels")
+            raise self._mask_too_large(mask, exc.width, exc.height) from None
+        except ColonlightError as exc:
+            self.metrics.inc("rejected", "bad_content_mask")
+            message = self.workspace.scrub(str(exc), mask.path, mask.filename)
+            raise ApiError(422, "invalid_content_mask", f"content mask {message}") from None
+        height, width = loaded.area.fov.shape
+        if width * height > self.settings.max_pixels:
+            self.metrics.inc("rejected", "too_many_pixels")
+            raise self._mask_too_large(mask, width, height)
+        mask.sha256 = loaded.sha256
+
+    def _mask_too_large(self, mask: MaskUpload, width: int, height: int) -> ApiError:
+        return ApiError(
+            413,
+            "frame_too_large",
+            f"content mask {mask.filename}: it is {width}x{height} ({width * height} pixels), over this server's "
+            f"limit of {self.settings.max_pixels} pixels a frame (COLONLIGHT_MAX_PIXELS)",
+        )

@@ -31,6 +31,7 @@ from colonlight.methods.options import method_kwargs, option, request_options
 from .errors import ApiError
 from .schemas import METHODS
 from .settings import Settings
+from .uploads import MASK_FIELD, MAX_MASK_BYTES
 
 #: The method options a request may set, in declaration order.
 METHOD_FIELDS = tuple(o.name for o in request_options())
@@ -70,7 +71,8 @@ class _ClipOptions(BaseModel):
     content: ContentMode = Field(
         DEFAULT_CONTENT,
         description="auto: the method sees only the field of view inside a black border, less fixed on-screen "
-        "text; border and text pixels are written unchanged. full: the whole frame.",
+        "text; border and text pixels are written unchanged. full: the whole frame. Leave it unset (or auto) "
+        f"when sending a `{MASK_FIELD}` part, which is used instead of the detection.",
     )
 
     @field_validator("*", mode="before")
@@ -164,6 +166,14 @@ def upload_request_body(description: str) -> dict[str, Any]:
             "default": "auto",
             "description": fields["content"].description,
         },
+        MASK_FIELD: {
+            "type": "string",
+            "format": "binary",
+            "description": "Optional: the scope's content mask, used instead of `content` detection (as "
+            "`colonlight enhance --content MASK`): one grey channel of the clip's frame size, 255 scene, 0 border, "
+            "a level between for fixed text. Binary PGM, PNG or lossless WebP (JPEG and lossy WebP are refused); "
+            f"at most {MAX_MASK_BYTES} bytes and COLONLIGHT_MAX_PIXELS pixels. Not with `content=full`.",
+        },
     }
     return {
         "required": True,
@@ -171,7 +181,12 @@ def upload_request_body(description: str) -> dict[str, Any]:
         "content": {
             "multipart/form-data": {
                 "schema": {"type": "object", "required": ["file"], "properties": props, "additionalProperties": False},
-                "encoding": {"file": {"contentType": "application/octet-stream, video/*"}},
+                "encoding": {
+                    "file": {"contentType": "application/octet-stream, video/*"},
+                    MASK_FIELD: {
+                        "contentType": "application/octet-stream, image/png, image/x-portable-graymap, image/webp"
+                    },
+                },
                 "example": {"file": "(binary: clip.mp4)", "fps": int(DEFAULT_FPS), "method": "rnn", "format": "jpg"},
             }
         },

@@ -6,6 +6,7 @@ from __future__ import annotations
 import threading
 import zipfile
 from pathlib import Path
+from typing import Any
 
 from colonlight import GAMMAS_FILE, VIDEO_FILE, ClipJob, ClipOutcome, atomic_path, read_json, write_json_atomic
 
@@ -39,13 +40,34 @@ class Results:
         return target
 
 
-def label_source(outcome: ClipOutcome, job: ClipJob, label: str) -> ClipOutcome:
-    """The finished clip's gammas.json with ``source`` naming the upload's label, not its server path."""
+def mask_setting(name: str, sha256: str) -> dict[str, str]:
+    """What a job records of an uploaded content mask: the engine's record of a mask (``content_setting``), its
+    upload name in place of the path on the server."""
+    return {"mask": name, "sha256": sha256}
+
+
+def mask_label(options: dict[str, Any]) -> str | None:
+    """The upload name of the content mask a job's recorded ``options`` name, or None (``auto``/``full``)."""
+    content = options.get("content")
+    return str(content["mask"]) if isinstance(content, dict) else None
+
+
+def relabel(record: dict[str, Any], label: str, mask: str | None = None) -> dict[str, Any]:
+    """A gammas.json record naming the upload (``label``) and its content mask (``mask``) instead of the server's
+    paths; the mask's SHA-256 stays as the engine recorded it."""
+    record["source"] = label
+    content = record.get("settings", {}).get("content")
+    if mask is not None and isinstance(content, dict):
+        content["mask"] = mask
+    return record
+
+
+def label_source(outcome: ClipOutcome, job: ClipJob, label: str, mask: str | None = None) -> ClipOutcome:
+    """The finished clip's gammas.json with ``source`` naming the upload's label, not its server path (and the
+    settings naming the uploaded content mask ``mask`` by its upload name)."""
     gammas = job.out_dir / GAMMAS_FILE
     try:
-        record = read_json(gammas)
-        record["source"] = label
-        write_json_atomic(gammas, record)
+        write_json_atomic(gammas, relabel(read_json(gammas), label, mask))
     except (OSError, ValueError) as exc:
         gammas.unlink(missing_ok=True)
         full = is_disk_full(exc)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import dataclasses
 import math
 import os
 import secrets
@@ -19,10 +20,11 @@ from .admission import Admission, JobBoard
 from .errors import ApiError, storage_full
 from .memory import FrameCollector, release_free_memory
 from .metrics import Metrics
+from .results import relabel
 from .runners import DISK_FULL, ClipHooks, ClipRunner, Stopped
 from .settings import Settings
 from .uploads import Upload, safe_suffix
-from .workspace import Workspace, remove
+from .workspace import MASK_NAME, Workspace, remove
 
 #: Sync work folders older than this are swept (a process that died mid-request; see :mod:`.sweeper`).
 SYNC_LEFTOVER_S = 3600.0
@@ -66,7 +68,8 @@ class SyncEnhancer:
         info: VideoInfo,
     ) -> dict[str, Any]:
         """Run the clip (checked by :meth:`check_duration`) and return ``{"gammas": ..., "video": ...}``; ``fps``
-        is the extraction rate (0 or None: every frame), which bounds the frames the duration limit allows."""
+        is the extraction rate (0 or None: every frame), which bounds the frames the duration limit allows. An
+        uploaded content mask is moved into the work folder and used in place of ``clip_opts.content``."""
         rate = (fps or 0) or info.avg_fps or MAX_FPS
         max_frames = math.ceil(self.settings.sync_max_seconds * rate) + 2
         token = "sync-" + secrets.token_hex(8)
@@ -77,11 +80,21 @@ class SyncEnhancer:
             out_dir=work / "out",
         )
 
-        def place_upload() -> None:
+        mask = work / MASK_NAME
+
+        def place_upload() -> ClipOptions:
             work.mkdir(parents=True)
             os.replace(upload.path, job.source)
+            if upload.mask is None:
+                return clip_opts
+            os.replace(upload.mask.path, mask)
+            return dataclasses.replace(clip_opts, content=str(mask))  # read here, as ``--content MASK`` is
 
-        await asyncio.to_thread(place_upload)
+        try:
+            clip_opts = await asyncio.to_thread(place_upload)
+        except BaseException:
+            await asyncio.to_thread(remove, work)
+            raise
         hooks = ClipHooks()
         over = [False]
 
@@ -122,13 +135,15 @@ class SyncEnhancer:
                 raise storage_full()
             if outcome.status != "done":
                 self.metrics.inc("sync_requests", "failed")
-                message = self.workspace.scrub(outcome.error or "failed", job.source, upload.filename)
+                named = None if upload.mask is None else (mask, upload.mask.filename)
+                message = self.workspace.scrub(outcome.error or "failed", job.source, upload.filename, named)
                 raise ApiError(422, "unprocessable_clip", message)
             self.metrics.observe_job("succeeded", outcome.seconds)
+            mask_name = None if upload.mask is None else upload.mask.filename
 
             def read() -> dict[str, Any]:
-                gammas = read_json(job.out_dir / GAMMAS_FILE)
-                gammas["source"] = upload.filename  # the upload's label, not the server's path
+                # the upload's labels, not the server's paths
+                gammas = relabel(read_json(job.out_dir / GAMMAS_FILE), upload.filename, mask_name)
                 video = (job.out_dir / VIDEO_FILE).read_bytes()
                 return {
                     "gammas": gammas,

@@ -4,7 +4,8 @@ FastAPI's ``UploadFile`` would parse the whole body into a temporary file before
 reads the request stream itself, so that an upload over the cap is answered with 413 as soon as the cap is
 crossed, one whose body stops arriving (or only trickles) with 408 once it has made too little progress for the
 idle time, one that meets a full disk with 507, and nothing of any of them stays on disk. The client's file name
-is kept only as a label, never as a path.
+is kept only as a label, never as a path. An optional second file part, ``content_mask`` (a scope's content mask
+image, used instead of detecting the area), is streamed the same way beside the clip under its own small cap.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from __future__ import annotations
 import contextlib
 import re
 import unicodedata
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
@@ -30,9 +31,24 @@ if TYPE_CHECKING:  # python-multipart defines its callback table's type for chec
 from .errors import ApiError, is_disk_full, storage_full
 
 FILE_FIELD = "file"
+MASK_FIELD = "content_mask"
+#: A binary PGM mask of a frame at the default pixel cap (4096x4096) is 16 MiB and its header: masks are small
+#: beside clips (a 1080p PGM is 2 MiB, a PNG of one a few KiB), and this bounds what a mask part may write.
+MAX_MASK_BYTES = 16 * 1024 * 1024 + 4096
 MAX_FIELDS = 32
 MAX_FIELD_BYTES = 8 * 1024
 _MULTIPART_OVERHEAD = 64 * 1024  # boundaries, part headers and small fields on top of the file
+
+
+@dataclass
+class MaskUpload:
+    """The ``content_mask`` part: where its bytes are (beside the clip's, a name chosen by the server), the client's
+    name for it (a label only), and the SHA-256 of those bytes once they have been checked as a mask."""
+
+    path: Path
+    filename: str
+    size: int
+    sha256: str = ""
 
 
 @dataclass
@@ -41,9 +57,21 @@ class Upload:
     filename: str  # the client's name for it, sanitised, for display only
     size: int
     fields: dict[str, str] = field(default_factory=dict)
+    mask: MaskUpload | None = None  # the optional ``content_mask`` part
 
     def discard(self) -> None:
         self.path.unlink(missing_ok=True)
+        if self.mask is not None:
+            self.mask.path.unlink(missing_ok=True)
+
+    def on_disk(self) -> bool:
+        """Whether a file of this upload is still where it was received (a job moves them away)."""
+        return self.path.exists() or (self.mask is not None and self.mask.path.exists())
+
+
+def mask_path(dest: Path) -> Path:
+    """Where the ``content_mask`` part of the upload received at ``dest`` is written (beside it, same token)."""
+    return dest.with_suffix(".mask")
 
 
 def display_name(raw: str | None) -> str:
@@ -62,22 +90,26 @@ def safe_suffix(filename: str) -> str:
 
 
 class _Collector:
-    """python-multipart callbacks: small fields kept in memory, the one file part handed out in pieces."""
+    """python-multipart callbacks: small fields kept in memory, the file parts (the clip, and at most one mask)
+    handed out in pieces."""
 
     def __init__(self) -> None:
         self.fields: dict[str, str] = {}
-        self.filename: str | None = None
-        self.file_seen = False
-        self.pending: list[bytes] = []  # file bytes of the current chunk, written after each feed
-        self._in_file = False
+        self.filenames: dict[str, str | None] = {}  # file part -> the client's file name, once the part is seen
+        self.pending: list[tuple[str, bytes]] = []  # (file part, bytes) of the current chunk, written after each feed
+        self._in_file: str | None = None
         self._name = ""
         self._data = bytearray()
         self._header_name = b""
         self._header_value = b""
         self._disposition = b""
 
+    @property
+    def file_seen(self) -> bool:
+        return FILE_FIELD in self.filenames
+
     def on_part_begin(self) -> None:
-        self._in_file = False
+        self._in_file = None
         self._name = ""
         self._data = bytearray()
         self._disposition = b""
@@ -99,18 +131,19 @@ class _Collector:
         if raw_name is None:
             raise ApiError(400, "bad_request", "a multipart part has no name in its Content-Disposition header")
         self._name = raw_name.decode("utf-8", "replace")
-        if self._name == FILE_FIELD:
-            if self.file_seen:
-                raise ApiError(422, "validation_error", f"send exactly one `{FILE_FIELD}` part")
-            self.file_seen = self._in_file = True
+        if self._name in (FILE_FIELD, MASK_FIELD):
+            if self._name in self.filenames:
+                which = "exactly one" if self._name == FILE_FIELD else "at most one"
+                raise ApiError(422, "validation_error", f"send {which} `{self._name}` part")
+            self._in_file = self._name
             raw_filename = options.get(b"filename")
-            self.filename = raw_filename.decode("utf-8", "replace") if raw_filename is not None else None
+            self.filenames[self._name] = raw_filename.decode("utf-8", "replace") if raw_filename is not None else None
         elif len(self.fields) >= MAX_FIELDS:
             raise ApiError(422, "validation_error", f"too many form fields (at most {MAX_FIELDS})")
 
     def on_part_data(self, data: bytes, start: int, end: int) -> None:
-        if self._in_file:
-            self.pending.append(data[start:end])
+        if self._in_file is not None:
+            self.pending.append((self._in_file, data[start:end]))
             return
         self._data += data[start:end]
         if len(self._data) > MAX_FIELD_BYTES:
@@ -119,7 +152,7 @@ class _Collector:
             )
 
     def on_part_end(self) -> None:
-        if not self._in_file:
+        if self._in_file is None:
             if self._name in self.fields:
                 raise ApiError(422, "validation_error", f"form field `{self._name[:50]}` is given twice")
             self.fields[self._name] = self._data.decode("utf-8", "replace")
@@ -204,65 +237,120 @@ async def _chunks(request: Request, idle_seconds: float, min_bytes_per_s: float)
         yield chunk
 
 
+def mask_too_large(filename: str | None) -> ApiError:
+    return ApiError(
+        413,
+        "payload_too_large",
+        f"{display_name(filename)}: the `{MASK_FIELD}` part is larger than {MAX_MASK_BYTES} bytes (a mask is one grey "
+        "channel of the clip's frame size: send it as PNG, lossless WebP or binary PGM)",
+        CLOSE,
+    )
+
+
+class _PartFile:
+    """One file part written to ``path`` as it arrives, opened on its first bytes, refused past ``cap`` bytes."""
+
+    def __init__(self, path: Path, cap: int, too_big: ApiError) -> None:
+        self.path, self.cap, self.too_big = path, cap, too_big
+        self.size = 0
+        self._fh: IO[bytes] | None = None
+
+    async def open(self) -> IO[bytes]:
+        """The part's file, created on first use (``x``: a name of the server's, never one already there)."""
+        if self._fh is None:
+            self._fh = await anyio.to_thread.run_sync(lambda: open(self.path, "xb"))  # noqa: SIM115 - closed below
+        return self._fh
+
+    async def write(self, data: bytes) -> None:
+        self.size += len(data)
+        if self.size > self.cap:
+            raise self.too_big
+        await anyio.to_thread.run_sync((await self.open()).write, data)
+
+    async def close(self) -> None:
+        """Close the file; one that never got a byte is created empty (a part of no bytes is still a file)."""
+        await anyio.to_thread.run_sync((await self.open()).close)
+
+    def cleanup(self) -> None:
+        if self._fh is not None:
+            with contextlib.suppress(OSError):
+                self._fh.close()
+        self.path.unlink(missing_ok=True)
+
+
+def _mask_part(collector: _Collector, part: _PartFile) -> MaskUpload | None:
+    """The ``content_mask`` part received, if any: one with no bytes and no file name (a browser's form with no
+    mask chosen) counts as none."""
+    if MASK_FIELD not in collector.filenames:
+        return None
+    raw = collector.filenames[MASK_FIELD]
+    if part.size == 0 and not raw:
+        part.path.unlink(missing_ok=True)
+        return None
+    return MaskUpload(path=part.path, filename=display_name(raw or "content_mask"), size=part.size)
+
+
 async def receive_upload(
     request: Request, dest: Path, max_bytes: int, idle_seconds: float, min_bytes_per_s: float = 0.0
 ) -> Upload:
-    """Stream the multipart body of ``request``: the ``file`` part to ``dest``, other parts as text fields.
+    """Stream the multipart body of ``request``: the ``file`` part to ``dest``, a ``content_mask`` part (optional,
+    at most :data:`MAX_MASK_BYTES`) to :func:`mask_path`, other parts as text fields.
 
     Raises :class:`ApiError`: 415 (not multipart), 413 (over ``max_bytes``, checked against Content-Length first
     and then while reading), 408 (too few body bytes in a window of ``idle_seconds``, see :func:`_chunks`), 507
-    (the disk is full), 400 (malformed body), 422 (no file part, too many or too long fields). ``dest`` is
-    removed on every error.
+    (the disk is full), 400 (malformed body), 422 (no file part, too many or too long fields). ``dest`` and the
+    mask's file are removed on every error.
     """
     boundary = _boundary(request)
     declared = request.headers.get("content-length")
-    if declared is not None and declared.isdigit() and int(declared) > max_bytes + _MULTIPART_OVERHEAD:
+    if declared is not None and declared.isdigit() and int(declared) > max_bytes + MAX_MASK_BYTES + _MULTIPART_OVERHEAD:
         raise too_large(max_bytes)
     collector = _Collector()
     try:
         parser = MultipartParser(boundary, collector.callbacks())
     except FormParserError as exc:  # e.g. a boundary over python-multipart's 256 bytes: the client's fault, not a 500
         raise ApiError(400, "bad_request", f"malformed multipart/form-data header: {str(exc)[:200]}", CLOSE) from None
-    size = 0
-    fh: IO[bytes] | None = None
+    parts = {
+        FILE_FIELD: _PartFile(dest, max_bytes, too_large(max_bytes)),
+        MASK_FIELD: _PartFile(mask_path(dest), MAX_MASK_BYTES, mask_too_large(None)),
+    }
     try:
-        fh = await anyio.to_thread.run_sync(lambda: open(dest, "xb"))  # noqa: SIM115 - closed below
+        await parts[FILE_FIELD].open()  # the clip's name is taken before any byte comes
         async for chunk in _chunks(request, idle_seconds, min_bytes_per_s):
             parser.write(chunk)
-            if collector.pending:
-                data = b"".join(collector.pending)
-                collector.pending.clear()
-                size += len(data)
-                if size > max_bytes:
-                    raise too_large(max_bytes)
-                await anyio.to_thread.run_sync(fh.write, data)
+            for name, data in collector.pending:
+                if name == MASK_FIELD:
+                    parts[name].too_big = mask_too_large(collector.filenames.get(MASK_FIELD))
+                await parts[name].write(data)
+            collector.pending.clear()
         parser.finalize()
-        await anyio.to_thread.run_sync(fh.close)
+        for name in collector.filenames:
+            await parts[name].close()
         if parser.state != MultipartState.END:
             raise ApiError(400, "bad_request", "incomplete multipart body: the closing boundary never came")
         if not collector.file_seen:
             raise ApiError(
                 422, "validation_error", f"the form has no `{FILE_FIELD}` part: attach the clip as `{FILE_FIELD}`"
             )
+        mask = _mask_part(collector, parts[MASK_FIELD])
     except MultipartParseError as exc:
-        _cleanup(fh, dest)
+        _cleanup(parts.values())
         raise ApiError(400, "bad_request", f"malformed multipart body: {str(exc)[:200]}") from None
     except ClientDisconnect:
-        _cleanup(fh, dest)
+        _cleanup(parts.values())
         raise ApiError(400, "client_disconnected", "the client went away during the upload") from None
     except OSError as exc:
-        _cleanup(fh, dest)
+        _cleanup(parts.values())
         if is_disk_full(exc):
             raise storage_full() from None
         raise
     except BaseException:
-        _cleanup(fh, dest)
+        _cleanup(parts.values())
         raise
-    return Upload(path=dest, filename=display_name(collector.filename), size=size, fields=collector.fields)
+    filename = display_name(collector.filenames[FILE_FIELD])
+    return Upload(path=dest, filename=filename, size=parts[FILE_FIELD].size, fields=collector.fields, mask=mask)
 
 
-def _cleanup(fh: IO[bytes] | None, dest: Path) -> None:
-    if fh is not None:
-        with contextlib.suppress(OSError):
-            fh.close()
-    dest.unlink(missing_ok=True)
+def _cleanup(parts: Iterable[_PartFile]) -> None:
+    for part in parts:
+        part.cleanup()

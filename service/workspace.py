@@ -7,6 +7,9 @@ import secrets
 import shutil
 from pathlib import Path
 
+#: The name of a job's uploaded content mask in its folder (beside ``input<suffix>``); never a name the client sends.
+MASK_NAME = "content_mask"
+
 
 class Workspace:
     """The folders under ``data_dir`` and the names in them."""
@@ -37,9 +40,12 @@ class Workspace:
     def new_upload_path(self) -> Path:
         return self.uploads_dir / f"{secrets.token_hex(16)}.part"
 
-    def scrub(self, message: str, source: Path, filename: str) -> str:
-        """An engine message with the server's paths replaced by the client's file name."""
+    def scrub(self, message: str, source: Path, filename: str, mask: tuple[Path, str] | None = None) -> str:
+        """An engine message with the server's paths replaced by the client's file names (``mask``: the uploaded
+        content mask's path and name)."""
         message = message.replace(str(source), filename)
+        if mask is not None:
+            message = message.replace(str(mask[0]), mask[1])
         return message.replace(str(self.root), "<data>")
 
 

@@ -11,7 +11,7 @@ from fastapi import Request
 from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 
-from colonlight import VideoInfo
+from colonlight import DEFAULT_CONTENT, VideoInfo
 
 from ..errors import ApiError
 from ..jobs import Admission, JobManager
@@ -19,7 +19,7 @@ from ..request_options import JobOptions
 from ..schemas import JobLinks, JobStatus, iso
 from ..settings import Settings
 from ..store import JobRecord
-from ..uploads import Upload, receive_upload
+from ..uploads import MASK_FIELD, Upload, receive_upload
 
 
 def parse_options(fields: dict[str, str]) -> JobOptions:
@@ -30,6 +30,18 @@ def parse_options(fields: dict[str, str]) -> JobOptions:
         raise RequestValidationError(
             [{"loc": ("body", *err["loc"]), "msg": err["msg"], "type": err["type"]} for err in exc.errors()]
         ) from None
+
+
+def check_mask_options(upload: Upload, options: JobOptions) -> None:
+    """422 for a ``content_mask`` part sent with ``content`` other than the default: the mask replaces the
+    detection, so ``full`` beside it asks for two things at once (refused rather than one silently winning)."""
+    if upload.mask is not None and options.content != DEFAULT_CONTENT:
+        raise ApiError(
+            422,
+            "validation_error",
+            f"content mask {upload.mask.filename}: a `{MASK_FIELD}` part is used instead of content detection; "
+            f"leave `content` unset (or {DEFAULT_CONTENT!r}) with it, not {options.content!r}",
+        )
 
 
 @dataclass(frozen=True)
@@ -45,9 +57,9 @@ class CheckedUpload:
 @asynccontextmanager
 async def checked_upload(request: Request, manager: JobManager, settings: Settings) -> AsyncIterator[CheckedUpload]:
     """Take an upload place (503), stream the upload to disk (413, 408, 507), validate the options (422), build
-    the method, probe the content (413 over the pixel cap, 415), and only then admit the job (503). On leaving,
-    release the admission (a no-op once a job owns it) and drop the upload file if it is still there (a job moves
-    it away)."""
+    the method, probe the content (413 over the pixel cap, 415), read the content mask if one came (422, 413), and
+    only then admit the job (503). On leaving, release the admission (a no-op once a job owns it) and drop the
+    upload's files if they are still there (a job moves them away)."""
     upload: Upload | None = None
     admission: Admission | None = None
     try:
@@ -60,8 +72,10 @@ async def checked_upload(request: Request, manager: JobManager, settings: Settin
                 settings.upload_min_bytes_per_s,
             )
             options = parse_options(upload.fields)
+            check_mask_options(upload, options)
             await manager.check_method(manager.method_spec(options))
             info = await manager.probe(upload)
+            await manager.check_mask(upload)
         admission = manager.admit()
         yield CheckedUpload(admission, upload, options, info)
     except ApiError as exc:
@@ -73,7 +87,7 @@ async def checked_upload(request: Request, manager: JobManager, settings: Settin
     finally:
         if admission is not None:
             admission.release()
-        if upload is not None and upload.path.exists():
+        if upload is not None and upload.on_disk():
             await anyio.to_thread.run_sync(upload.discard)
 
 

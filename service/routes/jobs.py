@@ -50,7 +50,8 @@ def _finished(rec: JobRecord) -> None:
     status_code=202,
     summary="Submit a clip for enhancement",
     description=(
-        "Upload a clip as multipart/form-data (`file`, plus the options of `colonlight enhance`). The upload is "
+        "Upload a clip as multipart/form-data (`file`, plus the options of `colonlight enhance`, and optionally a "
+        "`content_mask` image used as `--content MASK` is: a bad one is a 422 naming it). The upload is "
         "streamed to disk; one over COLONLIGHT_MAX_UPLOAD_MB is refused with 413 as soon as the limit is crossed, "
         "one whose body stops arriving for COLONLIGHT_UPLOAD_IDLE_SECONDS with 408, one that finds the data folder "
         "full with 507, frames over COLONLIGHT_MAX_PIXELS (read from the stream header) with 413, content that "

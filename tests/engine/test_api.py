@@ -63,6 +63,7 @@ def test_all_is_sorted_and_pinned() -> None:
         "iter_enhanced",
         "library_versions",
         "live_content_stream",
+        "load_content_mask",
         "load_weights",
         "method_for",
         "network_threads",
