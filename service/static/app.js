@@ -71,6 +71,8 @@ function upload(file) {
     const form = new FormData();
     form.append("method", $("method").value || "rnn");
     if ($("fps").value !== "") form.append("fps", $("fps").value);  // else the server's default
+    const mask = $("mask").files[0];  // optional: the scope's content mask, used instead of the detection
+    if (mask) form.append("content_mask", mask, mask.name);
     form.append("file", file, file.name);
     const xhr = new XMLHttpRequest();
     xhr.open("POST", "/v1/jobs");

@@ -153,8 +153,15 @@ def test_drop_a_clip_and_watch_it(server: ServiceServer, tmp_path: Path) -> None
 
 
 def test_page_with_an_api_key(tmp_path: Path, random_weights: Path) -> None:
-    """With COLONLIGHT_API_KEY the page asks for the key, sends it, and plays the video fetched with it."""
+    """With COLONLIGHT_API_KEY the page asks for the key, sends it, and plays the video fetched with it; a content
+    mask chosen on the page goes with the clip, and the job records it by its file name."""
+    from colonlight.content_area import ContentArea
+    from colonlight.content_mask import write_content_mask
+
     clip = endoscopy_like_clip(tmp_path / "dark.mp4", n=36)
+    scene = np.zeros((240, 320), bool)
+    scene[20:220, 30:290] = True
+    write_content_mask(tmp_path / "scope.pgm", ContentArea(scene, np.zeros_like(scene)))
     env = {"COLONLIGHT_WEIGHTS": str(random_weights), "COLONLIGHT_WORKERS": "1", "COLONLIGHT_API_KEY": "k3y"}
     with ServiceServer(tmp_path / "data", env) as srv, sync_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS, headless=True)
@@ -166,8 +173,12 @@ def test_page_with_an_api_key(tmp_path: Path, random_weights: Path) -> None:
             page.fill("#apikey", "k3y")
             page.dispatch_event("#apikey", "change")
             page.wait_for_function("document.querySelector('#method').options.length > 0")
+            page.set_input_files("#mask", str(tmp_path / "scope.pgm"))
             page.set_input_files("#file", str(clip))  # the click-to-choose path
             page.wait_for_function("document.querySelector('#status').dataset.status === 'succeeded'", timeout=90_000)
+            job_id = page.evaluate("location.hash").removeprefix("#job=")
+            job = httpx.get(f"{srv.url}/v1/jobs/{job_id}", headers={"X-API-Key": "k3y"}).json()
+            assert job["options"]["content"]["mask"] == "scope.pgm", job
             page.wait_for_function("document.querySelector('#enhanced').src.startsWith('blob:')")
             page.wait_for_function("document.querySelector('#enhanced').readyState >= 2", timeout=30_000)
             page.evaluate("document.querySelector('#enhanced').play()")
