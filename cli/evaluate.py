@@ -14,7 +14,7 @@ from colonlight import ColonlightError, parse_content
 from colonlight.limits import DEFAULT_FPS
 
 from . import options
-from .display import console, error_line
+from .display import console, error_line, printable
 from .failures import FAILED, USAGE, ends_command
 from .interrupts import interruptible
 
@@ -336,8 +336,9 @@ def evaluate(
             "tracking: brightness fixed first (the paper's setting: RNNSLAM runs DSO with mode=2, brightness not "
             "optimised); gap closed = share of the input -> oracle-curve gap (success / tracked)"
         )
-    console.print(f"report: {paths['html']}")
-    console.print(f"tables: {paths['markdown']}, {paths['csv']}; everything: {paths['json']}")
+    shown = {key: printable(str(path)) for key, path in paths.items()}  # an OUTPUT with [/] in it is no markup
+    console.print(f"report: {shown['html']}")
+    console.print(f"tables: {shown['markdown']}, {shown['csv']}; everything: {shown['json']}")
     if result.failed:
         raise typer.Exit(1)
 

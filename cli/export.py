@@ -11,7 +11,7 @@ from colonlight.limits import DEFAULT_MODEL_SIZE, MAX_MODEL_SIZE, MIN_MODEL_SIZE
 from colonlight.methods.options import option
 
 from . import options
-from .display import console
+from .display import console, printable
 from .failures import FAILED, ends_command
 from .interrupts import interruptible
 
@@ -56,8 +56,10 @@ def export(
             raise OutputError(f"{output}: cannot write ({exc.strerror or exc})") from exc
     check = record["check"]["onnxruntime_vs_torch_max_abs_diff"]
     outputs = ", ".join(o["name"] for o in record["outputs"])
-    console.print(f"wrote {output} (opset {record['onnx']['opset']}, input {size}x{size}, outputs {outputs})")
-    console.print(f"wrote {onnx_sidecar_path(output)}")
+    console.print(
+        f"wrote {printable(str(output))} (opset {record['onnx']['opset']}, input {size}x{size}, outputs {outputs})"
+    )
+    console.print(f"wrote {printable(str(onnx_sidecar_path(output)))}")  # a name with [/] is no markup
     if check is not None:
         console.print(f"checked against torch: max |difference| {check:.2g}")
 

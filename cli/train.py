@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, NoReturn
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from colonlight.limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE, MAX_MODEL_SIZE
+from colonlight.limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE, MAX_LEARNING_RATE, MAX_MODEL_SIZE, MAX_TRAIN_SEED
 
 from .display import console, error_line, printable
 from .failures import FAILED, ends_command
@@ -186,7 +186,7 @@ def train_cmd(
     lr: float = typer.Option(5e-5, "--lr"),
     seq_len: int = typer.Option(10, "--seq-len", min=3),
     stride: int = typer.Option(5, "--stride", min=1),
-    seed: int = typer.Option(0, "--seed"),
+    seed: int = typer.Option(0, "--seed", min=0, max=MAX_TRAIN_SEED),
     anchor: float = typer.Option(
         0.0,
         "--anchor",
@@ -344,16 +344,19 @@ def train_cmd(
             )
         except OSError as exc:  # a disk that fills mid-run: the epochs saved so far stay, the rerun resumes
             _write_failed(exc, output)
-    console.print(f"weights: {result.weights}\ncard:    {result.weights.with_suffix('.json')}")
+    _wrote(result.weights)
     _exit_if_skipped(result.skipped, " (listed in the card)")
 
 
 def _check_numbers(fps: float, lr: float, **weights: float) -> None:
     """Usage errors for values no run can use, before anything is read or rendered: an fps outside enhance's
-    range, a learning rate that is not a finite number above 0, a loss weight that is not finite."""
+    range, a learning rate that is not a finite number in (0, 1e30] (a larger one overflowed inside the optimizer,
+    a traceback), a loss weight that is not finite."""
     check_fps(fps)
-    if not (math.isfinite(lr) and lr > 0):
-        raise typer.BadParameter(f"must be a finite number above 0, got {lr:g}", param_hint="--lr")
+    if not (math.isfinite(lr) and 0 < lr <= MAX_LEARNING_RATE):
+        raise typer.BadParameter(
+            f"must be a finite number above 0 and at most {MAX_LEARNING_RATE:g}, got {lr:g}", param_hint="--lr"
+        )
     for name, value in weights.items():
         if not math.isfinite(value):
             raise typer.BadParameter(
@@ -361,12 +364,24 @@ def _check_numbers(fps: float, lr: float, **weights: float) -> None:
             )
 
 
+#: Longest --name: the file system's 255 bytes a name, less what the weights' temporary adds around it
+#: (``.NAME-epoch001.safetensors.XXXXXXXX.colonlight-tmp.safetensors``: 58). A longer one trained a whole epoch,
+#: then failed naming a temporary file.
+_MAX_NAME_BYTES = 190
+
+
 def _check_name(name: str) -> None:
     """A usage error for a ``--name`` that is no plain file name: empty (the weights would be a hidden
-    ``.safetensors``), hidden, or a path (``../x`` would write outside OUTPUT)."""
+    ``.safetensors``), hidden, a path (``../x`` would write outside OUTPUT), or too long for its files."""
     if not name or name.startswith(".") or "/" in name or "\\" in name or "\0" in name:
         raise typer.BadParameter(
             f"must be a plain file name (no folder, not hidden), got {name!r}", param_hint="--name"
+        )
+    if len(os.fsencode(name)) > _MAX_NAME_BYTES:
+        raise typer.BadParameter(
+            f"must be at most {_MAX_NAME_BYTES} bytes long (its files' temporaries must fit the file system's "
+            f"255), got {len(os.fsencode(name))}",
+            param_hint="--name",
         )
 
 
@@ -404,7 +419,7 @@ def _export_epoch(run_dir: Path, epoch: int) -> None:
 
     with ends_command(FAILED, kinds=(InputError,)):
         result = export_epoch(run_dir, epoch)
-    console.print(f"weights: {result.weights}\ncard:    {result.weights.with_suffix('.json')}")
+    _wrote(result.weights)
 
 
 def _train_zerodce(
@@ -462,8 +477,14 @@ def _train_zerodce(
         raise typer.Exit(1) from None
     except OSError as exc:
         _write_failed(exc, output)
-    console.print(f"weights: {result.weights}\ncard:    {result.weights.with_suffix('.json')}")
+    _wrote(result.weights)
     _exit_if_skipped(skipped, "")
+
+
+def _wrote(weights: Path) -> None:
+    """The weights and card written, their paths shown as they are: an OUTPUT or --name with ``[/]`` in it was
+    read as markup (a traceback after the run had written everything)."""
+    console.print(f"weights: {printable(str(weights))}\ncard:    {printable(str(weights.with_suffix('.json')))}")
 
 
 def _skip_line(reason: str) -> None:

@@ -57,6 +57,12 @@ MIN_MODEL_SIZE, MAX_MODEL_SIZE = 8, 1024
 #: The rnn method's input side when neither the option nor the weights' card gives one, and the size ``colonlight
 #: train`` trains at. Chosen by measurement (README, "Choosing the network input size").
 DEFAULT_MODEL_SIZE = 48
+#: Largest training seed (``colonlight train --seed``): NumPy's global generator, which a run seeds for
+#: reproducibility, takes 0..2**32 - 1 and raised a traceback for anything else.
+MAX_TRAIN_SEED = 2**32 - 1
+#: Largest learning rate a run takes (``--lr``): near 1e37 Adam's step overflowed float32 inside the optimizer (a
+#: traceback); up to this, a rate too high for the run ends in one line as a divergence (``try a lower --lr``).
+MAX_LEARNING_RATE = 1e30
 #: Largest exponent of the ``gamma`` method (``out = in ** gamma``): at 10 all but the brightest pixels are black
 #: already, so a larger value is a typo.
 MAX_GAMMA = 10.0

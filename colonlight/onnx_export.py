@@ -212,6 +212,8 @@ def _check_targets(weights: LoadedWeights, out: Path) -> None:
     after). Nor may either be a folder: the graph would be written without its sidecar; nor a device, FIFO or
     socket (``-o /dev/null``): the atomic rename would replace the node itself with a regular file."""
     protected = [weights.path, card_path(weights.path)]
+    if not out.name or out.name == ".." or out.is_dir():  # first: ``-o ""`` is ".", which has no sidecar name
+        raise ExportError(f"{out}: a folder is in the way of the export")
     for target in (out, onnx_sidecar_path(out)):
         if target.is_dir():
             raise ExportError(f"{target}: a folder is in the way of the export")

@@ -35,7 +35,7 @@ from .atomic import atomic_path, read_json, remove_stale_temporaries, write_json
 from .checkpoint import load_weights, save_weights
 from .correction import apply_gain_gamma, apply_head, correct, gain_gamma_to_curve_map
 from .errors import InputError, OptionError
-from .limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE
+from .limits import DEFAULT_FPS, DEFAULT_MODEL_SIZE, MAX_LEARNING_RATE, MAX_TRAIN_SEED
 from .model import HEAD_OUTPUTS, INPUT_CHANNELS, GammaNet, parameter_count
 from .outdir import TRAIN_LOCK, output_lock
 from .sources import clip_frames
@@ -78,6 +78,12 @@ class TrainConfig:
             raise OptionError(f"head must be one of {', '.join(HEAD_OUTPUTS)}, got {self.head!r}")
         if self.inputs not in INPUT_CHANNELS:
             raise OptionError(f"inputs must be one of {', '.join(INPUT_CHANNELS)}, got {self.inputs!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed <= MAX_TRAIN_SEED:
+            raise OptionError(f"seed must be a whole number 0..{MAX_TRAIN_SEED}, got {self.seed!r}")
+        if not (math.isfinite(self.lr) and 0 < self.lr <= MAX_LEARNING_RATE):
+            raise OptionError(
+                f"learning rate must be a finite number above 0 and at most {MAX_LEARNING_RATE:g}, got {self.lr!r}"
+            )
         if self.exposure_jitter < 0 or not math.isfinite(self.exposure_jitter):
             raise OptionError(f"exposure jitter must be finite and >= 0, got {self.exposure_jitter!r}")
         steps = self.frame_steps
@@ -565,10 +571,12 @@ def _check_resumable(path: Path, meta: dict[str, Any], cfg: TrainConfig) -> int:
     trained with other settings (a different head or input cannot even load it; a different size or objective
     would leave a card claiming settings its first epochs never had), or it has more epochs than ``cfg.epochs``
     (the weights written would be those of the later epoch, under a card saying ``cfg.epochs``)."""
-    try:
-        epoch = int(meta["epoch"])
-    except (KeyError, TypeError, ValueError):
-        raise InputError(f"{path.with_suffix('.json')}: unreadable training state (no epoch){_STATE_HINT}") from None
+    epoch = meta.get("epoch")
+    if isinstance(epoch, bool) or not isinstance(epoch, int) or epoch < 1:  # -3 was a traceback from NumPy's seeding
+        raise InputError(
+            f"{path.with_suffix('.json')}: unreadable training state (its epoch is not a whole number >= 1: "
+            f"{str(epoch)[:40]}){_STATE_HINT}"
+        )
     card = meta.get("card")
     saved = card.get("training") if isinstance(card, dict) else None
     if isinstance(saved, dict):  # states saved before cards were kept in them have nothing to compare
@@ -618,9 +626,11 @@ def _load_state(path: Path, net: GammaNet, opt: torch.optim.Optimizer) -> tuple[
 
 
 def latest_state(run_dir: Path) -> Path | None:
-    """The newest complete epoch state in ``run_dir/checkpoints`` (its JSON is written last)."""
-    states = sorted((run_dir / "checkpoints").glob("epoch_*.json"))
-    return states[-1].with_suffix("") if states else None
+    """The newest complete epoch state in ``run_dir/checkpoints`` (its JSON is written last): by epoch number, not
+    by name, for ``epoch_1000`` sorts before ``epoch_999`` (a resume went back to epoch 999 and trained the rest
+    again)."""
+    states = [p for p in (run_dir / "checkpoints").glob("epoch_*.json") if p.stem.removeprefix("epoch_").isdecimal()]
+    return max(states, key=lambda p: (int(p.stem.removeprefix("epoch_")), p.name)).with_suffix("") if states else None
 
 
 ARCHITECTURES = {
@@ -851,7 +861,7 @@ def export_epoch(run_dir: Path, epoch: int, out: Path | None = None) -> TrainRes
     state = run_dir / "checkpoints" / f"epoch_{epoch:03d}"
     if not state.with_suffix(".json").is_file():
         names = (p.stem.removeprefix("epoch_") for p in (run_dir / "checkpoints").glob("epoch_*.json"))
-        saved = sorted(int(n) for n in names if n.isdigit())
+        saved = sorted(int(n) for n in names if n.isdecimal())
         have = f"epochs saved: {', '.join(map(str, saved))}" if saved else "no epoch saved yet"
         raise InputError(f"{run_dir}: no saved state for epoch {epoch} ({have})")
     try:

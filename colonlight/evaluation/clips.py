@@ -169,6 +169,26 @@ def _read_depth_png(path: Path) -> np.ndarray:
     return decode_depth(img)
 
 
+def _clean_frames(
+    folder: Path, paths: list[Path], count: int, original: tuple[int, ...], size: tuple[int, int]
+) -> list[np.ndarray]:
+    """The clip's clean frames at working size; InputError naming them if they are not the clip's frame for frame:
+    fewer than its frames were dropped without a word (no reference rows, no reason), and another size was
+    stretched to the frames' and scored as the truth."""
+    if len(paths) != count:
+        raise InputError(f"{folder}: {len(paths)} clean frame(s) for the clip's {count} frames; they must match")
+    clean = []
+    for path in paths:
+        image = read_image(path)
+        if image.shape[1::-1] != original:
+            raise InputError(
+                f"{path}: clean frame of {image.shape[1]}x{image.shape[0]}, the clip's frames are "
+                f"{original[0]}x{original[1]}"
+            )
+        clean.append(resize_frame(image, size))
+    return clean
+
+
 def load_synthetic_clip(
     folder: Path,
     max_size: int | None = DEFAULT_MAX_SIZE,
@@ -204,7 +224,9 @@ def load_synthetic_clip(
     frames = [resize_frame(f, size) for f in images]
     if any(f.shape[1::-1] != size for f in frames):
         raise InputError(f"{folder}: frame size differs from intrinsics.json ({w0}x{h0})")
-    clean = [resize_frame(read_image(p), size) for p in clean_paths] if len(clean_paths) == len(frames) else None
+    clean = (
+        _clean_frames(clean_dir, clean_paths, len(frames), images[0].shape[1::-1], size) if clean_dir.is_dir() else None
+    )
     occluder = None
     per_frame: list[dict[str, Any]] | None = None
     camera_gamma = None

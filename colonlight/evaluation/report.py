@@ -316,6 +316,19 @@ def markdown_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str
     return "\n".join(out)
 
 
+def _shown(text: str) -> str:
+    """``text`` with a path's bytes that are not UTF-8 (surrogate escapes) as ``\\udcNN``, as :func:`_utf8`
+    writes them."""
+    return text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
+def _utf8(text: str) -> bytes:
+    """``text`` as UTF-8, a clip path's bytes that are not UTF-8 (surrogate escapes) written as ``\\udcNN``, as
+    :func:`colonlight.atomic.json_bytes` writes them: plain ``encode("utf-8")`` raised on them, a traceback after
+    the whole evaluation had run, and no report."""
+    return text.encode("utf-8", "backslashreplace")
+
+
 def _csv(rows: Sequence[dict[str, Any]]) -> bytes:
     buf = io.StringIO()
     if rows:
@@ -323,7 +336,7 @@ def _csv(rows: Sequence[dict[str, Any]]) -> bytes:
         writer.writeheader()
         for r in rows:
             writer.writerow({k: "" if v is None else v for k, v in clean_json(r).items()})
-    return buf.getvalue().encode("utf-8")
+    return _utf8(buf.getvalue())
 
 
 def clip_rows(result: EvaluationResult) -> list[dict[str, Any]]:
@@ -441,7 +454,7 @@ def clip_plot(result: EvaluationResult, clip_index: int) -> str:
         if r.luma_out:
             ax.plot(t, r.luma_out, color=colours[label], lw=1.2, label=label)
     ax.set_ylabel("mean luma")
-    ax.set_title(c.name, fontsize=10)
+    ax.set_title(_shown(c.name), fontsize=10)  # matplotlib refuses a name's surrogate escapes (a traceback)
     ax.legend(fontsize=7, ncol=4, loc="best")
     if with_gamma:
         for label in with_gamma:
@@ -622,10 +635,10 @@ def write_report(result: EvaluationResult, out_dir: Path, command: str | None = 
     # report.html, one report set describing two evaluations.
     contents = {
         "json": json_bytes(clean_json(record)),
-        "markdown": markdown_report(result, rows).encode("utf-8"),
+        "markdown": _utf8(markdown_report(result, rows)),
         "csv": _csv(rows),
         "clips_csv": _csv(clip_rows(result)),
-        "html": html_report(result, rows, prov).encode("utf-8"),
+        "html": _utf8(html_report(result, rows, prov)),
     }
     temporaries: dict[str, Path] = {}
     try:
