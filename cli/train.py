@@ -275,8 +275,9 @@ def train_cmd(
                 f"synthetic: {synthetic_val} clips, seeds {synthetic_seed + synthetic}.."
                 f"{synthetic_seed + synthetic + synthetic_val - 1}"
             )
-    if not train_clips:
-        raise typer.BadParameter("give clips to train on, or --synthetic N")
+    if not train_clips:  # folders given that hold no clip are named: the user looks there first
+        where = f"no clips found in {', '.join(printable(str(d)) for d in data)}; " if data else ""
+        raise typer.BadParameter(f"{where}give clips to train on, or --synthetic N")
     if not val_clips and len(train_clips) > 1:
         val_clips = [train_clips.pop()]
     if method in ("zerodce", "zerodce++"):

@@ -52,6 +52,13 @@ def test_seeds_and_learning_rates_no_run_can_use_are_usage_errors(tmp_path: Path
     assert not (tmp_path / "run").exists()
 
 
+def test_a_folder_without_clips_is_named(tmp_path: Path) -> None:
+    empty = tmp_path / "no clips here"
+    empty.mkdir()
+    code, output = invoke("train", str(empty), "-o", str(tmp_path / "run"), *TINY)
+    assert code == 2 and f"no clips found in {empty}" in output, output
+
+
 def test_a_name_too_long_for_its_files_is_refused_before_training(tmp_path: Path) -> None:
     clip = frames(tmp_path / "a")
     code, output = invoke("train", str(clip), "-o", str(tmp_path / "run"), *TINY, "--name", "n" * 191)
