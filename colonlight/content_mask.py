@@ -198,7 +198,7 @@ def load_content_mask(path: Path) -> ContentMask:
     except OSError as exc:
         raise InputError(f"{path}: cannot read the content mask ({exc.strerror or exc})") from exc
     _check_mask_file(path, data)
-    check_image_size(path)  # the header's size against the pixel cap, before the pixels are decoded
+    check_image_size(path, data=data)  # the header's size against the pixel cap, before the pixels are decoded
     rgb = decode_image(np.frombuffer(data, np.uint8), path)
     if not (np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 0], rgb[..., 2])):
         raise InputError(f"{path}: a content mask is grey (0 border, 255 scene), not a colour image")

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import io
 import math
 import os
 import re
@@ -121,7 +122,13 @@ def is_image_folder(folder: Path) -> bool:
 _PILLOW_LIMIT_LOCK = threading.Lock()
 
 
-def _header_size_past_pillows_limit(path: Path) -> tuple[int, int]:
+def _image_source(path: Path, data: bytes | None) -> Path | io.BytesIO:
+    """What Pillow opens: the file at ``path``, or the bytes a caller has read from it already (each open gets its
+    own stream, at the start)."""
+    return path if data is None else io.BytesIO(data)
+
+
+def _header_size_past_pillows_limit(path: Path, data: bytes | None = None) -> tuple[int, int]:
     """The size in the header of an image past Pillow's decompression-bomb limit (> 179 Mpx), which refuses to
     report it: read again with the limit off. Only the header is read (Pillow decodes nothing here; OpenCV decodes
     the frames, after our own cap has judged this size). The limit is a module global of Pillow's, hence the lock,
@@ -132,17 +139,19 @@ def _header_size_past_pillows_limit(path: Path) -> tuple[int, int]:
         limit = Image.MAX_IMAGE_PIXELS
         Image.MAX_IMAGE_PIXELS = None
         try:
-            with Image.open(path) as img:
+            with Image.open(_image_source(path, data)) as img:
                 return int(img.width), int(img.height)
         finally:
             Image.MAX_IMAGE_PIXELS = limit
 
 
-def check_image_size(path: Path, max_pixels: int | None = None) -> tuple[int, int] | None:
+def check_image_size(path: Path, max_pixels: int | None = None, data: bytes | None = None) -> tuple[int, int] | None:
     """``(width, height)`` from the header of the image at ``path``, read without decoding its pixels (OpenCV,
-    which decodes the frames, has no header-only reader; Pillow's ``open`` is lazy). None if Pillow cannot read
-    the header (the decoder then reports the file). FrameTooLargeError if it gives more than ``max_pixels`` pixels
-    (None: the configured cap), with the size; past Pillow's own decompression-bomb limit too (our cap decides)."""
+    which decodes the frames, has no header-only reader; Pillow's ``open`` is lazy). ``data``: the file's bytes,
+    for a caller that has read them already, so the size judged is that of the bytes it decodes and the file is
+    not opened again. None if Pillow cannot read the header (the decoder then reports the file).
+    FrameTooLargeError if it gives more than ``max_pixels`` pixels (None: the configured cap), with the size; past
+    Pillow's own decompression-bomb limit too (our cap decides)."""
     from PIL import Image
 
     cap = max_pixels_setting() if max_pixels is None else int(max_pixels)
@@ -150,10 +159,10 @@ def check_image_size(path: Path, max_pixels: int | None = None) -> tuple[int, in
         with warnings.catch_warnings():  # Pillow warns past 89 Mpx; our cap decides
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             try:
-                with Image.open(path) as img:
+                with Image.open(_image_source(path, data)) as img:
                     width, height = int(img.width), int(img.height)
             except Image.DecompressionBombError:
-                width, height = _header_size_past_pillows_limit(path)
+                width, height = _header_size_past_pillows_limit(path, data)
     except Exception:  # noqa: BLE001 - unknown or broken header: the decoder reports it
         return None
     if width * height > cap:

@@ -178,7 +178,9 @@ def test_the_service_never_takes_a_mask_path(tmp_path: Path) -> None:
 
     mask = tmp_path / "mask.pgm"
     mask.write_bytes(pgm_bytes(_mask()))
-    with mock.patch("colonlight.content_mask.read_content_mask", side_effect=AssertionError("read a path")):
+    # where parse_content reads a mask (patched there: the name it calls, not read_content_mask, which it no longer
+    # goes through since masks are read once)
+    with mock.patch("colonlight.content.load_content_mask", side_effect=AssertionError("read a path")):
         for value in (str(mask), "mask.pgm", "AUTO", " full "):
             with pytest.raises(ValidationError):
                 JobOptions(content=value)
@@ -243,3 +245,23 @@ def test_the_host_refuses_a_fifo_or_folder_without_waiting(host: tuple[Path, Pat
     (tmp_path / "loop.pgm").symlink_to(tmp_path / "loop.pgm")
     loop = _run_host(host, tmp_path / "loop.pgm").stderr.decode()
     assert "cannot read the content mask (Too many levels of symbolic links)" in loop, loop
+
+
+def test_the_pixel_cap_judges_the_mask_bytes_that_are_decoded(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The mask's size is read from the bytes read once, not from the file opened again: the cap judges what is
+    decoded (a file replaced in between is not what it judged), and past Pillow's own limit too."""
+    from colonlight.errors import FrameTooLargeError
+    from colonlight.frames import check_image_size
+
+    from ..media import flat_png
+
+    path = tmp_path / "mask.pgm"
+    path.write_bytes(pgm_bytes(_mask()))
+    monkeypatch.setenv("COLONLIGHT_MAX_PIXELS", str(_mask().size - 1))
+    with pytest.raises(FrameTooLargeError, match="mask.pgm"):
+        read_content_mask(path)
+    huge = flat_png(20000, 20000, rows=0)  # past Pillow's bomb limit: sized with it lifted, from the bytes too
+    with pytest.raises(FrameTooLargeError, match=r"mask.pgm: frames of 20000x20000"):
+        check_image_size(path, max_pixels=4096 * 4096, data=huge)
+    assert check_image_size(path, max_pixels=10**9, data=huge) == (20000, 20000)
+    assert check_image_size(path, max_pixels=10**9) == _mask().shape[::-1]  # the file itself: the small mask
