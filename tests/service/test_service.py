@@ -54,12 +54,6 @@ def server(tmp_path_factory: pytest.TempPathFactory, random_weights: Path) -> It
         yield srv
 
 
-@pytest.fixture()
-def client(server: ServiceServer) -> Iterator[httpx.Client]:
-    with httpx.Client(base_url=server.url, timeout=60) as c:
-        yield c
-
-
 def submit(client: httpx.Client, path: Path, **fields: str) -> httpx.Response:
     return client.post("/v1/jobs", files={"file": (path.name, path.read_bytes(), "video/mp4")}, data=fields)
 

@@ -89,12 +89,6 @@ def server(tmp_path_factory: pytest.TempPathFactory, random_weights: Path) -> It
         yield srv
 
 
-@pytest.fixture()
-def client(server: ServiceServer) -> Iterator[httpx.Client]:
-    with httpx.Client(base_url=server.url, timeout=60) as c:
-        yield c
-
-
 def post(client: httpx.Client, route: str, clip: Path, mask: Path, **fields: str) -> httpx.Response:
     files = {"file": (clip.name, clip.read_bytes(), "video/mp4"), "content_mask": (mask.name, mask.read_bytes())}
     return client.post(route, files=files, data={"fps": "0", **fields})

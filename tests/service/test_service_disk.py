@@ -44,12 +44,6 @@ def clip(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return make_clip(tmp_path_factory.mktemp("disk-clips") / "p7.mp4", n_frames=25, fps=25, size=(256, 192))
 
 
-@pytest.fixture()
-def client(server: ServiceServer) -> Iterator[httpx.Client]:
-    with httpx.Client(base_url=server.url, timeout=60) as c:
-        yield c
-
-
 def free_bytes(path: Path) -> int:
     st = os.statvfs(path)
     return st.f_bavail * st.f_frsize

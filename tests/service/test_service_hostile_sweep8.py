@@ -28,12 +28,6 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServiceServer]:
         yield srv
 
 
-@pytest.fixture
-def client(server: ServiceServer) -> Iterator[httpx.Client]:
-    with httpx.Client(base_url=server.url, timeout=60) as c:
-        yield c
-
-
 def upload(client: httpx.Client, name: str, body: bytes) -> httpx.Response:
     return client.post("/v1/jobs", files={"file": (name, body, "application/octet-stream")})
 

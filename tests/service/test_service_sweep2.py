@@ -39,12 +39,6 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServiceServer]:
         yield srv
 
 
-@pytest.fixture()
-def client(server: ServiceServer) -> Iterator[httpx.Client]:
-    with httpx.Client(base_url=server.url, timeout=60) as c:
-        yield c
-
-
 def _idle(client: httpx.Client, timeout: float = 60) -> dict:
     """/readyz once no upload is in flight (a dropped connection is noticed by the server in its own time)."""
     deadline = time.monotonic() + timeout
