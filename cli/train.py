@@ -6,7 +6,7 @@ import itertools
 import math
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 
     import numpy as np
 
-    from colonlight import EpochRecord
+    from colonlight import EpochRecord, TrainConfig
 
 
 def _synthetic_clips(
@@ -86,6 +86,16 @@ def _init_design(init: str | None, head: str | None) -> tuple[str, str]:
     except CheckpointError as exc:
         raise typer.BadParameter(str(exc), param_hint="--init") from None
     return net.head, net.inputs_for_head(head or net.head)
+
+
+def _rnn_config(frame_steps: str, **options: Any) -> TrainConfig:
+    """The run's TrainConfig from the command's options, or a usage error naming the option that no run can use."""
+    from colonlight import OptionError, TrainConfig, parse_frame_steps
+
+    try:
+        return TrainConfig(frame_steps=parse_frame_steps(frame_steps), **options)
+    except OptionError as exc:
+        raise typer.BadParameter(str(exc)) from None
 
 
 def train_cmd(
@@ -216,12 +226,8 @@ def train_cmd(
     _check_numbers(fps, lr, consistency=consistency, temporal=temporal, exposure_jitter=exposure_jitter, anchor=anchor)
     _check_name(name)
     _check_output(output)
-    from colonlight import TRAIN_LOCK, output_lock
-
-    # Held from the first clip rendered to the last weights written, released when the command ends (click closes
-    # the context); a folder another run holds is an OutputError, one line from the console script.
-    ctx.with_resource(output_lock(output, TRAIN_LOCK))
-    command = invocation(ctx)
+    if method not in ("rnn", "zerodce", "zerodce++"):
+        raise typer.BadParameter("choose rnn, zerodce or zerodce++", param_hint="--method")
     if method == "rnn" and init == "default":
         from colonlight import DEFAULT_WEIGHTS
 
@@ -229,8 +235,41 @@ def train_cmd(
     if method == "rnn":  # --init is read now, even with --head and --inputs given: bad, it fails before any rendering
         init_head, init_inputs = _init_design(init, head)
         head, inputs = head or init_head, inputs or init_inputs
+    # Every usage error comes before the lock: taking it creates OUTPUT, and a run refused after that left a folder
+    # holding only its lock file.
     train_clips = _clips(list(data or []))
     val_clips = _clips(list(val or []))
+    if not train_clips and not synthetic:  # folders given that hold no clip are named: the user looks there first
+        where = f"no clips found in {', '.join(printable(str(d)) for d in data)}; " if data else ""
+        raise typer.BadParameter(f"{where}give clips to train on, or --synthetic N")
+    cfg = None
+    if method == "rnn":  # its options are checked before the lock too
+        cfg = _rnn_config(
+            size=size,
+            seq_len=seq_len,
+            stride=stride,
+            batch=batch,
+            lr=lr,
+            epochs=epochs,
+            seed=seed,
+            fps=fps or None,
+            init=init,
+            anchor=anchor,
+            head=head or "gamma",
+            objective=objective,
+            consistency=consistency,
+            temporal=temporal,
+            exposure_jitter=exposure_jitter,
+            inputs=inputs or "rgb",
+            frame_steps=frame_steps,
+            steady_weight=steady_weight,
+        )
+    from colonlight import TRAIN_LOCK, output_lock
+
+    # Held from the first clip rendered to the last weights written, released when the command ends (click closes
+    # the context); a folder another run holds is an OutputError, one line from the console script.
+    ctx.with_resource(output_lock(output, TRAIN_LOCK))
+    command = invocation(ctx)
     extra: dict[str, object] = {"command": command}
     if synthetic:
         train_clips += _synthetic_clips(
@@ -275,42 +314,14 @@ def train_cmd(
                 f"synthetic: {synthetic_val} clips, seeds {synthetic_seed + synthetic}.."
                 f"{synthetic_seed + synthetic + synthetic_val - 1}"
             )
-    if not train_clips:  # folders given that hold no clip are named: the user looks there first
-        where = f"no clips found in {', '.join(printable(str(d)) for d in data)}; " if data else ""
-        raise typer.BadParameter(f"{where}give clips to train on, or --synthetic N")
     if not val_clips and len(train_clips) > 1:
         val_clips = [train_clips.pop()]
-    if method in ("zerodce", "zerodce++"):
+    if cfg is None:
         _train_zerodce(train_clips, method, output, name, epochs, size, batch, lr, seed, fps, extra)
         return
-    if method != "rnn":
-        raise typer.BadParameter("choose rnn, zerodce or zerodce++", param_hint="--method")
     # Imported here, not at the top: other commands (enhance above all) do without torch's training side and kornia.
-    from colonlight import OptionError, TrainConfig, parse_frame_steps, train_model
+    from colonlight import train_model
 
-    try:
-        cfg = TrainConfig(
-            size=size,
-            seq_len=seq_len,
-            stride=stride,
-            batch=batch,
-            lr=lr,
-            epochs=epochs,
-            seed=seed,
-            fps=fps or None,
-            init=init,
-            anchor=anchor,
-            head=head or "gamma",
-            objective=objective,
-            consistency=consistency,
-            temporal=temporal,
-            exposure_jitter=exposure_jitter,
-            inputs=inputs or "rgb",
-            frame_steps=parse_frame_steps(frame_steps),
-            steady_weight=steady_weight,
-        )
-    except OptionError as exc:
-        raise typer.BadParameter(str(exc)) from None
     with Progress(
         TextColumn("{task.description}"),
         BarColumn(),

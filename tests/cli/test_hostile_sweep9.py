@@ -57,6 +57,19 @@ def test_a_folder_without_clips_is_named(tmp_path: Path) -> None:
     empty.mkdir()
     code, output = invoke("train", str(empty), "-o", str(tmp_path / "run"), *TINY)
     assert code == 2 and f"no clips found in {empty}" in output, output
+    assert not (tmp_path / "run").exists(), "a refused run left a folder holding only its lock file"
+
+
+@pytest.mark.parametrize(
+    "options",
+    [["--steady-weight", "4"], ["--frame-steps", "0"], ["--method", "nope"]],
+    ids=["steady-weight-unsupervised", "frame-step-0", "unknown-method"],
+)
+def test_options_no_run_can_use_leave_no_run_folder(tmp_path: Path, options: list[str]) -> None:
+    clip = frames(tmp_path / "a")
+    code, output = invoke("train", str(clip), "-o", str(tmp_path / "run"), *TINY, *options)
+    assert code == 2 and "Invalid value" in output, output
+    assert not (tmp_path / "run").exists()
 
 
 def test_a_name_too_long_for_its_files_is_refused_before_training(tmp_path: Path) -> None:
