@@ -16,7 +16,6 @@ output folder gets the same bytes.
 
 from __future__ import annotations
 
-import errno
 import fnmatch
 import os
 import stat
@@ -24,6 +23,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
+from .errors import os_error_cause
 from .frames import IMAGE_SUFFIXES, is_image_folder
 from .jobs import ClipJob
 from .video import VIDEO_SUFFIXES, is_video
@@ -87,16 +87,6 @@ def _strip_suffix(rel: Path) -> Path:
     return rel.with_suffix("") if rel.suffix else rel
 
 
-def _cause(exc: OSError) -> str:
-    if exc.errno == errno.ELOOP:
-        return "symbolic link loop"
-    if exc.errno == errno.ENOENT:
-        return "not found (a dangling link, or moved or deleted?)"
-    if exc.errno in (errno.EACCES, errno.EPERM):
-        return "permission denied"
-    return exc.strerror or str(exc)
-
-
 def _identity(st: os.stat_result) -> tuple[int, int]:
     return st.st_dev, st.st_ino
 
@@ -136,7 +126,7 @@ class _Walk:
                     names = sorted(e.name for e in it if not e.name.startswith("."))
             except OSError as exc:
                 self.out.problems.append(
-                    PathProblem(str(folder), f"{folder}: cannot search this folder: {_cause(exc)}")
+                    PathProblem(str(folder), f"{folder}: cannot search this folder: {os_error_cause(exc)}")
                 )
                 continue
             subfolders: list[Path] = []
@@ -149,10 +139,10 @@ class _Walk:
                     st = os.stat(path)
                 except OSError as exc:
                     if suffix in VIDEO_SUFFIXES:
-                        files.append((path, f"{path}: {_cause(exc)}"))
+                        files.append((path, f"{path}: {os_error_cause(exc)}"))
                     elif not side:
                         self.out.problems.append(
-                            PathProblem(str(path), f"{path}: skipped: {_cause(exc)}", failed=False)
+                            PathProblem(str(path), f"{path}: skipped: {os_error_cause(exc)}", failed=False)
                         )
                     continue
                 if stat.S_ISDIR(st.st_mode):
@@ -214,7 +204,7 @@ def _direct(inp: Path) -> tuple[Path, Path, str | None]:
     try:
         st = os.stat(inp)
     except OSError as exc:
-        return inp, rel, f"{inp}: {_cause(exc)}"
+        return inp, rel, f"{inp}: {os_error_cause(exc)}"
     if not (stat.S_ISREG(st.st_mode) or stat.S_ISDIR(st.st_mode)):
         return inp, rel, f"{inp}: not a regular file or folder"
     return inp, rel, None

@@ -20,6 +20,8 @@ Shells (CLI, service) catch ``ColonlightError`` and show its message without a t
 
 from __future__ import annotations
 
+import errno
+
 
 class ColonlightError(Exception):
     """Base class of expected failures; ``str(err)`` is a one-line message for the user."""
@@ -76,3 +78,21 @@ class CheckpointError(ColonlightError):
 
 class DeviceError(ColonlightError):
     """A requested compute device that is not available."""
+
+
+def os_error_cause(exc: OSError) -> str:
+    """What an ``OSError`` means to the user, in a few words: one wording for every place that names a path it
+    could not use (a link loop is no "no such file", the cause the bare errno text would give)."""
+    if exc.errno == errno.ELOOP:
+        return "symbolic link loop"
+    if exc.errno == errno.ENOENT:
+        return "not found (a dangling link, or moved or deleted?)"
+    if exc.errno in (errno.EACCES, errno.EPERM):
+        return "permission denied"
+    if exc.errno == errno.EROFS:
+        return "read-only file system"
+    if exc.errno == errno.ENOSPC:
+        return "no space left on device"
+    if exc.errno == errno.ENOTDIR:
+        return "a parent of it is a file, not a folder"
+    return exc.strerror or str(exc)

@@ -12,7 +12,6 @@ allowed as long as they are not videos. Frames are taken in natural order (``fra
 from __future__ import annotations
 
 import contextlib
-import errno
 import io
 import math
 import os
@@ -26,7 +25,7 @@ import cv2
 import numpy as np
 
 from .atomic import NOT_REGULAR_FILE, write_bytes_atomic
-from .errors import FrameTooLargeError, InputError, OptionError
+from .errors import FrameTooLargeError, InputError, OptionError, os_error_cause
 from .limits import DEFAULT_FPS, DEFAULT_JPEG_QUALITY, max_pixels_setting
 from .methods.base import number_option
 from .video import DecodedFrame, is_video
@@ -82,11 +81,7 @@ def _entry_problem(entry: os.DirEntry[str]) -> str | None:
             return "folder"
         os.stat(entry.path)  # a dangling link or a loop raises here; anything else is no regular file
     except OSError as exc:
-        if exc.errno == errno.ELOOP:
-            return "symbolic link loop"
-        if exc.errno == errno.ENOENT:
-            return "not found (a dangling link, or moved or deleted?)"
-        return exc.strerror or str(exc)
+        return os_error_cause(exc)
     return NOT_REGULAR_FILE
 
 

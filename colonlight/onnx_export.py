@@ -24,6 +24,7 @@ from .checkpoint import LoadedWeights, card_path
 from .correction import CURVE_KNOTS, CURVE_SLOPE_MAX, LOG_GAIN_SPAN, LOG_GAMMA_SPAN, SLOPE_OFFSET
 from .methods.rnn import CURVE_SUMMARY_AT, GAIN_MAX, GAIN_MIN, GAMMA_MAX, GAMMA_MIN, PRESAMPLE, SEED_FRAMES
 from .onnx_step import ExportError, StepSignature, compare_with_torch, cpu_session, export_model_bytes
+from .outdir import parent_problem
 from .scene_cut import default_threshold
 from .scene_cut import host_rule as scene_cut_rule
 from .tone_match import default_weight, host_rule
@@ -212,6 +213,9 @@ def _check_targets(weights: LoadedWeights, out: Path) -> None:
     after). Nor may either be a folder: the graph would be written without its sidecar; nor a device, FIFO or
     socket (``-o /dev/null``): the atomic rename would replace the node itself with a regular file."""
     protected = [weights.path, card_path(weights.path)]
+    blocked = parent_problem(out)
+    if blocked:  # before: mkdir's bare "File exists", after the graph was built and checked
+        raise ExportError(f"{out}: {blocked}")
     if not out.name or out.name == ".." or out.is_dir():  # first: ``-o ""`` is ".", which has no sidecar name
         raise ExportError(f"{out}: a folder is in the way of the export")
     for target in (out, onnx_sidecar_path(out)):

@@ -29,7 +29,7 @@ from typing import Any
 
 from .atomic import parse_json
 from .discovery import OUTPUT_MARKER
-from .errors import ColonlightError
+from .errors import ColonlightError, os_error_cause
 
 #: The lock file of a ``colonlight train`` run folder (two runs into one folder would overwrite each other's
 #: epoch states and weights).
@@ -48,14 +48,21 @@ _HELD: dict[tuple[int, int], list[int]] = {}  # lock file identity -> [fd, depth
 _HELD_GUARD = threading.Lock()
 
 
-def _cause(exc: OSError) -> str:
-    if exc.errno == errno.EROFS:
-        return "read-only file system"
-    if exc.errno in (errno.EACCES, errno.EPERM):
-        return "permission denied"
-    if exc.errno == errno.ENOSPC:
-        return "no space left on device"
-    return exc.strerror or str(exc)
+def parent_problem(path: Path) -> str | None:
+    """Why no file or folder can be made at ``path`` because of its parents (the nearest existing one is a file,
+    a dangling link, or cannot be looked at), or None. Nothing is created: a command asks before its work, so a
+    bad path costs nothing and leaves nothing."""
+    for parent in Path(path).parents:
+        try:
+            if parent.is_dir():
+                return None
+            if parent.exists():
+                return f"{parent} is a file, not a folder"
+            if os.path.lexists(parent):
+                return f"{parent} is a dangling symbolic link (or a link loop)"
+        except OSError as exc:  # a name past NAME_MAX, a folder that cannot be searched
+            return f"{parent}: {os_error_cause(exc)}"
+    return None
 
 
 def prepare_output(out_root: Path) -> Path:
@@ -67,7 +74,7 @@ def prepare_output(out_root: Path) -> Path:
         if out_root.exists() and not out_root.is_dir():
             raise OutputError(f"{out_root}: the output path is a file, not a folder")
     except OSError as exc:
-        raise OutputError(f"{out_root}: cannot use the output path: {_cause(exc)}") from None
+        raise OutputError(f"{out_root}: cannot use the output path: {os_error_cause(exc)}") from None
     try:
         out_root.mkdir(parents=True, exist_ok=True)
     except FileExistsError:
@@ -77,7 +84,7 @@ def prepare_output(out_root: Path) -> Path:
     except NotADirectoryError:
         raise OutputError(f"{out_root}: a parent of the output folder is a file") from None
     except OSError as exc:
-        raise OutputError(f"{out_root}: cannot create the output folder: {_cause(exc)}") from None
+        raise OutputError(f"{out_root}: cannot create the output folder: {os_error_cause(exc)}") from None
     if not os.access(out_root, os.W_OK | os.X_OK):
         try:
             read_only = bool(os.statvfs(out_root).f_flag & os.ST_RDONLY)
@@ -112,7 +119,7 @@ def output_lock(out_root: Path, lock_name: str = OUTPUT_MARKER) -> Iterator[Path
     try:
         fd = os.open(lock_path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
     except OSError as exc:
-        raise OutputError(f"{out_root}: cannot write to the output folder: {_cause(exc)}") from None
+        raise OutputError(f"{out_root}: cannot write to the output folder: {os_error_cause(exc)}") from None
     ident = (os.fstat(fd).st_dev, os.fstat(fd).st_ino)
     with _HELD_GUARD:
         held = _HELD.get(ident)
@@ -126,7 +133,7 @@ def output_lock(out_root: Path, lock_name: str = OUTPUT_MARKER) -> Iterator[Path
         except OSError as exc:
             if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
                 os.close(fd)
-                raise OutputError(f"{out_root}: cannot lock the output folder: {_cause(exc)}") from None
+                raise OutputError(f"{out_root}: cannot lock the output folder: {os_error_cause(exc)}") from None
             who = _holder(fd)
             os.close(fd)
             raise OutputBusy(

@@ -5,10 +5,12 @@ Callers ask :func:`clip_frames` for frames and never care which kind a clip is.
 
 from __future__ import annotations
 
+import os
+import stat
 from collections.abc import Iterator
 from pathlib import Path
 
-from .errors import InputError
+from .errors import InputError, os_error_cause
 from .frames import check_image_size, is_image_folder, iter_image_folder, list_image_frames
 from .limits import DEFAULT_FPS, max_pixels_setting
 from .video import DecodedFrame, DecodeReport, iter_video_frames, probe_frame_size
@@ -17,14 +19,18 @@ from .video import DecodedFrame, DecodeReport, iter_video_frames, probe_frame_si
 def clip_kind(path: Path) -> str:
     """``"video"`` for a file, ``"frames"`` for a folder of images; :class:`InputError` otherwise."""
     path = Path(path)
-    if path.is_file():
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as exc:  # a link loop or a dangling link is named as one: "no such file" sent users looking
+        if not os.path.lexists(path):
+            raise InputError(f"{path}: no such file or folder") from None
+        raise InputError(f"{path}: {os_error_cause(exc)}") from None
+    if stat.S_ISREG(mode):
         return "video"
-    if path.is_dir():
+    if stat.S_ISDIR(mode):
         if is_image_folder(path):
             return "frames"
         raise InputError(f"{path}: folder holds no frame images")
-    if not path.exists():
-        raise InputError(f"{path}: no such file or folder")
     raise InputError(f"{path}: not a regular file or folder")
 
 

@@ -1,0 +1,56 @@
+"""Hostile-input sweep 10: paths whose parents or links cannot be used, named for what they are.
+
+Defects found: ``export -o afile/x.onnx`` built and checked the whole graph, then said only "File exists"
+(tests/cli/test_failures.py has that case; a link loop in the path is here); a clip
+that is a symbolic link loop was "no such file or folder" to ``train`` and ``evaluate``, which sent the user looking
+for a file that is there.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+from colonlight_cli.main import app
+from typer.testing import CliRunner
+
+from colonlight import DEFAULT_WEIGHTS, InputError
+from colonlight.sources import clip_kind
+
+
+def invoke(*args: str) -> tuple[int, str]:
+    result = CliRunner().invoke(app, list(args), env={"COLUMNS": "400", "NO_COLOR": "1"})
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
+    assert "Traceback" not in result.output, result.output
+    return result.exit_code, result.output
+
+
+def test_an_export_under_a_link_loop_says_so(tmp_path: Path) -> None:
+    loop = tmp_path / "loop"
+    os.symlink(loop, loop)
+    code, output = invoke("export", "-w", str(DEFAULT_WEIGHTS), "-o", str(loop / "x.onnx"))
+    assert code == 1 and f"{loop} is a dangling symbolic link (or a link loop)" in output, output
+
+
+@pytest.mark.parametrize("kind", ["loop", "dangling"])
+def test_a_clip_that_is_a_broken_link_is_named_as_one(tmp_path: Path, kind: str) -> None:
+    link = tmp_path / "clip.mp4"
+    os.symlink(link if kind == "loop" else tmp_path / "gone.mp4", link)
+    with pytest.raises(InputError) as caught:
+        clip_kind(link)
+    cause = "symbolic link loop" if kind == "loop" else "not found (a dangling link, or moved or deleted?)"
+    assert str(caught.value) == f"{link}: {cause}"
+
+
+def test_a_clip_that_is_missing_is_no_such_file(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match=r": no such file or folder$"):
+        clip_kind(tmp_path / "never.mp4")
+
+
+def test_evaluating_a_link_loop_names_the_loop(tmp_path: Path) -> None:
+    loop = tmp_path / "loop.mp4"
+    os.symlink(loop, loop)
+    code, output = invoke("evaluate", str(loop), "-o", str(tmp_path / "ev"), "--methods", "none", "--no-colmap")
+    assert f"{loop}: symbolic link loop" in output, output
+    assert "no such file" not in output
