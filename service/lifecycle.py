@@ -109,7 +109,9 @@ class JobLifecycle:
             raise
         admission.transfer()
         self.metrics.inc("submitted")
-        self.enqueue(rec)
+        # off the event loop: planning reads the job's content mask (up to a 16 MiB PGM, ~100 ms), and every other
+        # request would wait for it; the board, the store and the runners' pools are thread-safe
+        await asyncio.to_thread(self.enqueue, rec)
         return rec
 
     def enqueue(self, rec: JobRecord) -> None:

@@ -13,6 +13,7 @@ from ..deps import Authenticated, ManagerDep
 from ..errors import error_responses
 from ..metrics import CONTENT_TYPE
 from ..schemas import METHODS, ServiceInfo
+from ..uploads import MAX_MASK_BYTES
 
 router = APIRouter(dependencies=[Authenticated])
 
@@ -62,6 +63,8 @@ async def info(manager: ManagerDep) -> ServiceInfo:
         },
         limits={
             "max_upload_mb": s.max_upload_mb,
+            "max_content_mask_bytes": MAX_MASK_BYTES,  # the `content_mask` part's own cap, beside the clip's
+            "max_pixels": s.max_pixels,  # a clip's frames and a mask alike (COLONLIGHT_MAX_PIXELS)
             "max_fps": MAX_FPS,
             "sync_max_seconds": s.sync_max_seconds,
             "result_ttl_seconds": s.result_ttl_seconds,

@@ -18,7 +18,10 @@ import av
 import httpx
 import pytest
 from colonlight_cli.main import app as cli_app
+from colonlight_service.uploads import MAX_MASK_BYTES
 from typer.testing import CliRunner
+
+from colonlight.limits import max_pixels_setting
 
 from ..media import make_clip, needs_ffmpeg, read_index, text_file, truncated_copy, zero_byte_file
 from ..service_server import ServiceServer
@@ -378,6 +381,9 @@ def test_web_page_is_served(client: httpx.Client) -> None:
     )
     # the default method's worker setting (colonlight.network_threads): one thread for the small recurrent net
     assert info["limits"]["torch_threads"] == 1
+    # what an upload may be, so a client can check before it sends: the mask part's cap and the frame pixel cap
+    assert info["limits"]["max_content_mask_bytes"] == MAX_MASK_BYTES
+    assert info["limits"]["max_pixels"] == max_pixels_setting()
 
 
 def test_frames_total_at_submission_is_the_final_count(client: httpx.Client, tmp_path: Path) -> None:

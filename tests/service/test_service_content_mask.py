@@ -31,6 +31,8 @@ pytestmark = [needs_ffmpeg, pytest.mark.timeout(120)]
 WIDTH, HEIGHT = 128, 96
 #: The field of view inside the black border: rows, columns.
 FOV = (slice(12, 84), slice(20, 108))
+#: The module server's pixel cap: far above the clip's frames, below a mask made too large for it.
+MAX_PIXELS = 1_000_000
 
 
 def bordered_frames(n: int) -> list[np.ndarray]:
@@ -73,18 +75,25 @@ def media(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     (d / "scope.pgm").write_bytes(pgm(mask))
     (d / "scope.jpg").write_bytes(cv2.imencode(".jpg", mask)[1].tobytes())
     (d / "small.png").write_bytes(cv2.imencode(".png", mask[::2, ::2])[1].tobytes())
+    (d / "huge.png").write_bytes(cv2.imencode(".png", np.zeros((1000, 1001), np.uint8))[1].tobytes())
     return {
         "clip": write_clip(d / "scope clip.mp4", bordered_frames(12)),
         "pgm": d / "scope.pgm",
         "jpg": d / "scope.jpg",
         "small": d / "small.png",
+        "huge": d / "huge.png",
     }
 
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory, random_weights: Path) -> Iterator[ServiceServer]:
     data = tmp_path_factory.mktemp("service-mask") / "data"
-    env = {"COLONLIGHT_WEIGHTS": str(random_weights), "COLONLIGHT_WORKERS": "1", "COLONLIGHT_SYNC_MAX_SECONDS": "3"}
+    env = {
+        "COLONLIGHT_WEIGHTS": str(random_weights),
+        "COLONLIGHT_WORKERS": "1",
+        "COLONLIGHT_SYNC_MAX_SECONDS": "3",
+        "COLONLIGHT_MAX_PIXELS": str(MAX_PIXELS),
+    }
     with ServiceServer(data, env) as srv:
         yield srv
 
@@ -158,6 +167,19 @@ def test_a_jpeg_mask_is_refused_naming_it_with_nothing_left(
     assert sorted((server.data_dir / "jobs").iterdir()) == jobs_before
 
 
+def test_a_mask_over_the_pixel_cap_is_413_naming_it_with_nothing_left(
+    client: httpx.Client, server: ServiceServer, media: dict[str, Path]
+) -> None:
+    """Judged from the PNG's header (a few KiB of bytes can declare a bomb), before anything is decoded."""
+    jobs_before = sorted((server.data_dir / "jobs").iterdir())
+    for route in ("/v1/jobs", "/v1/enhance"):
+        body = assert_json_error(post(client, route, media["clip"], media["huge"]), 413)
+        assert "huge.png" in body["message"] and "1001x1000" in body["message"], body
+        assert "\n" not in body["message"] and str(server.data_dir) not in body["message"]
+    assert leftovers(server) == [] and list((server.data_dir / "sync").iterdir()) == []
+    assert sorted((server.data_dir / "jobs").iterdir()) == jobs_before
+
+
 def test_a_mask_of_another_size_fails_the_job_in_one_line(
     client: httpx.Client, server: ServiceServer, media: dict[str, Path]
 ) -> None:
@@ -192,10 +214,13 @@ def test_a_job_resumed_after_a_restart_keeps_its_mask(
         assert first.status_code == 202, first.text
         r = post(c, "/v1/jobs", media["clip"], media["pgm"])
         assert r.status_code == 202, r.text
+        lost = post(c, "/v1/jobs", media["clip"], media["pgm"])  # its mask is deleted while the server is down
+        assert lost.status_code == 202, lost.text
         assert c.get(r.headers["location"]).json()["status"] == "queued"
         server.kill()
     job_dir = server.data_dir / "jobs" / r.json()["id"]
     assert (job_dir / "content_mask").read_bytes() == media["pgm"].read_bytes()
+    (server.data_dir / "jobs" / lost.json()["id"] / "content_mask").unlink()
     server.start()
     with httpx.Client(base_url=server.url, timeout=60) as c:
         assert c.delete(first.headers["location"]).status_code == 204  # the mask's job need not wait for it
@@ -204,3 +229,6 @@ def test_a_job_resumed_after_a_restart_keeps_its_mask(
         assert done["attempts"] == 1  # it had not started before the kill
         digest = hashlib.sha256(media["pgm"].read_bytes()).hexdigest()
         assert c.get(done["links"]["gammas"]).json()["settings"]["content"] == {"mask": "scope.pgm", "sha256": digest}
+        gone = c.get(lost.headers["location"]).json()  # failed at the start, saying why; never run without its mask
+        assert gone["status"] == "failed", gone
+        assert "content mask scope.pgm is gone" in gone["error"] and "\n" not in gone["error"], gone
