@@ -38,6 +38,7 @@ _EXPORTS: dict[str, str] = {
     "content_stream": "content",
     "find_content_area": "content",
     "check_mask_output": "content_mask",
+    "content_mask_from_bytes": "content_mask",
     "load_content_mask": "content_mask",
     "read_content_mask": "content_mask",
     "write_content_mask": "content_mask",
@@ -118,7 +119,13 @@ if TYPE_CHECKING:
         parse_content,
         parse_content_mode,
     )
-    from .content_mask import check_mask_output, load_content_mask, read_content_mask, write_content_mask
+    from .content_mask import (
+        check_mask_output,
+        content_mask_from_bytes,
+        load_content_mask,
+        read_content_mask,
+        write_content_mask,
+    )
     from .curves import apply_gamma, apply_lut, gamma_lut
     from .device import resolve_device
     from .discovery import VIDEO_SUFFIXES, PathProblem, discover, discover_clips, synthetic_folder_of
@@ -193,6 +200,7 @@ __all__ = [
     "available_methods",
     "check_mask_output",
     "clip_frames",
+    "content_mask_from_bytes",
     "content_stream",
     "create_method",
     "default_workers",

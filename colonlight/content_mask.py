@@ -45,7 +45,8 @@ _WEBP_LOSSY, _WEBP_FRAME, _WEBP_FRAME_HEADER = b"VP8 ", b"ANMF", 16
 
 class ContentMask(str):
     """A ``--content MASK`` read once for a whole run (:func:`load_content_mask`): the text is the mask's absolute
-    path, :attr:`sha256` the SHA-256 of the bytes read and :attr:`area` the area those same bytes show.
+    path (or, for one read from bytes, :func:`content_mask_from_bytes`'s name), :attr:`sha256` the SHA-256 of the
+    bytes read and :attr:`area` the area those same bytes show.
 
     Every clip is shown :attr:`area` and the settings record :attr:`sha256`, so a mask edited while a batch runs
     changes neither: hashed once and read again for each clip, the record could name bytes no clip was shown. A
@@ -197,16 +198,30 @@ def load_content_mask(path: Path) -> ContentMask:
         raise InputError(f"{path}: a folder, not a content mask image") from None
     except OSError as exc:
         raise InputError(f"{path}: cannot read the content mask ({exc.strerror or exc})") from exc
-    _check_mask_file(path, data)
-    check_image_size(path, data=data)  # the header's size against the pixel cap, before the pixels are decoded
-    rgb = decode_image(np.frombuffer(data, np.uint8), path)
+    return _read_mask(data, path, os.path.abspath(path))
+
+
+def content_mask_from_bytes(data: bytes, name: str, max_pixels: int | None = None) -> ContentMask:
+    """A mask image's file bytes that are in no file of the caller's (the service's WebSocket stream gets them in
+    its start message), checked and read exactly as :func:`load_content_mask` reads a file, so that a mask is
+    taken or refused alike whichever way it came; no temporary file to write and remove. ``name`` (a label, not a
+    path) starts each error and is the mask's text (what the stream's frame-size error names). ``max_pixels``:
+    the pixel cap (None: the configured one); FrameTooLargeError past it, with the size."""
+    return _read_mask(data, Path(name), name, max_pixels)
+
+
+def _read_mask(data: bytes, label: Path, text: str, max_pixels: int | None = None) -> ContentMask:
+    """The :class:`ContentMask` of a mask file's bytes ``data`` (its text ``text``), its errors naming ``label``."""
+    _check_mask_file(label, data)
+    check_image_size(label, max_pixels, data=data)  # the header's size against the pixel cap, before decoding
+    rgb = decode_image(np.frombuffer(data, np.uint8), label)
     if not (np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 0], rgb[..., 2])):
-        raise InputError(f"{path}: a content mask is grey (0 border, 255 scene), not a colour image")
+        raise InputError(f"{label}: a content mask is grey (0 border, 255 scene), not a colour image")
     try:
         area = image_area(np.ascontiguousarray(rgb[..., 0]))
     except ValueError as exc:
-        raise InputError(f"{path}: {exc}") from None
-    return ContentMask(os.path.abspath(path), hashlib.sha256(data).hexdigest(), area)
+        raise InputError(f"{label}: {exc}") from None
+    return ContentMask(text, hashlib.sha256(data).hexdigest(), area)
 
 
 def read_content_mask(path: Path) -> ContentArea:
@@ -222,6 +237,7 @@ __all__ = [
     "SCENE",
     "area_image",
     "check_mask_output",
+    "content_mask_from_bytes",
     "image_area",
     "load_content_mask",
     "pgm_bytes",

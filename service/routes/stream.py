@@ -3,14 +3,21 @@
 Protocol (version 1; every text message is a JSON object with a ``type``):
 
 * client -> ``{"type": "start", "method": "rnn", "model_size": "48", "gamma": null, "format": "jpeg",
-  "quality": 90, "frames": true, "content": "auto", "api_key": "..."}``: optional, first; every field
-  optional. Without it the server's defaults apply from the first frame on. ``content`` ``auto`` (the default)
-  shows the method only the field of view inside a black border, less fixed text, found on the first frame and
-  again after a change of frame size (``colonlight.content.live_content_stream``); its result carries
-  ``"content"`` where the area changes. ``api_key`` is for browsers, which cannot set headers on a
-  WebSocket; other clients send ``X-API-Key`` or ``Authorization: Bearer`` as on every route.
+  "quality": 90, "frames": true, "content": "auto", "content_mask": {"name": "scope.png", "data": "<base64>"},
+  "api_key": "..."}``: optional, first; every field optional. Without it the server's defaults apply from the
+  first frame on. ``content`` ``auto`` (the default) shows the method only the field of view inside a black
+  border, less fixed text, found on the first frame and again after a change of frame size
+  (``colonlight.content.live_content_stream``); its result carries ``"content"`` where the area changes.
+  ``content_mask``: a scope's mask image (a job's ``content_mask`` part: PNG, lossless WebP or binary PGM, 255
+  scene, 0 border), its file's bytes in base64 inside the start message, so the protocol stays one JSON message
+  per step and a browser sends it as it is; used instead of the detection, exactly as ``colonlight stream
+  --content MASK`` uses one (border pixels sent back unchanged; a frame of another size is a ``bad_frame``).
+  Read off the event loop from the decoded bytes (``content_mask_from_bytes``: the engine's checks, no file).
+  ``api_key`` is for browsers, which cannot set headers on a WebSocket; other clients send ``X-API-Key`` or
+  ``Authorization: Bearer`` as on every route.
 * server -> ``{"type": "ready", "method", "model", "parameters", "format", "frames", "content", "max_pixels",
-  "max_frame_bytes"}``: before the first result.
+  "max_frame_bytes"}``: before the first result. ``content`` is the mode, or a mask's record as a job's
+  (``{"mask": its name, "sha256"}``), never a server path.
 * client -> a binary message: one frame, JPEG or PNG bytes. To give it a timestamp (or any number to match it
   by), send ``{"type": "frame", "time": 12.34}`` just before it; ``time`` is echoed in its result.
 * server -> per frame, in order: ``{"type": "result", "index", "time", "gamma", "a", "seed", "clamped", "width",
@@ -24,9 +31,11 @@ Protocol (version 1; every text message is a JSON object with a ``type``):
   "errors"}`` and closes with 1000.
 
 Close codes: 1000 after ``end``; 1001 idle for ``COLONLIGHT_STREAM_IDLE_SECONDS``; 1008 no or wrong API key, bad
-start options, or streams turned off; 1009 a message over ``COLONLIGHT_STREAM_MAX_FRAME_MB`` (uvicorn); 1011
-internal error (logged; no traceback is sent); 1013 ``COLONLIGHT_STREAM_MAX`` streams are open already. Each
-close but 1009 is preceded by an ``error`` message saying why.
+start options (a content mask beside ``content`` other than ``auto``, not base64, over ``MAX_MASK_BYTES`` decoded,
+over the pixel cap, or one the engine refuses: one line naming it by its ``name``), or streams turned off; 1009 a
+message over ``COLONLIGHT_STREAM_MAX_FRAME_MB`` (uvicorn; the start message too); 1011 internal error (logged; no
+traceback is sent); 1013 ``COLONLIGHT_STREAM_MAX`` streams are open already. Each close but 1009 is preceded by an
+``error`` message saying why.
 
 Memory: the server reads a client's next message only after it has sent the answers to the previous one, and
 uvicorn stops reading the socket while a message waits, so a client that does not read its answers is pushed
@@ -37,14 +46,16 @@ back through TCP and costs one frame and one answer; one that has read nothing f
 from __future__ import annotations
 
 import asyncio
+import base64
 import contextlib
 import json
 import logging
 import math
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import anyio
 from fastapi import APIRouter, WebSocket
@@ -57,17 +68,24 @@ from colonlight import (
     ContentMode,
     FrameResult,
     MethodStream,
+    content_mask_from_bytes,
     live_content_stream,
     parse_json,
 )
+from colonlight.errors import FrameTooLargeError
 from colonlight.limits import MAX_JPEG_QUALITY, MIN_JPEG_QUALITY
+
+if TYPE_CHECKING:  # the type of content_mask_from_bytes's answer, for the checker only
+    from colonlight.content_mask import ContentMask
 
 from ..deps import key_is_valid
 from ..errors import ApiError
 from ..jobs import JobManager
 from ..request_options import METHOD_FIELDS, JobOptions, method_option_fields
+from ..results import mask_setting
 from ..settings import Settings
 from ..stream_frames import FrameError, decode_frame, encode_frame, max_pixels
+from ..uploads import MASK_FIELD, MAX_MASK_BYTES, display_name
 
 log = logging.getLogger("colonlight.service")
 router = APIRouter()
@@ -77,6 +95,19 @@ CLOSE_IDLE = 1001
 CLOSE_POLICY = 1008
 CLOSE_INTERNAL = 1011
 CLOSE_BUSY = 1013
+#: Text messages longer than this (a start message carrying a content mask) are parsed off the event loop.
+_LARGE_TEXT = 64 * 1024
+T = TypeVar("T")
+
+
+class StreamMask(BaseModel):
+    """A scope's content mask in the start message: its image file's bytes in base64 (JSON carries no bytes, and
+    the protocol stays one message per step), and the client's name for it, a label only."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str = Field(MASK_FIELD, description="The mask's file name, for the ready record and errors; never a path.")
+    data: str = Field(description="The image file's bytes (PNG, lossless WebP or binary PGM) in base64 (RFC 4648).")
 
 
 class _StreamStartBase(BaseModel):
@@ -97,6 +128,11 @@ class _StreamStartBase(BaseModel):
         description="auto: the method sees the field of view inside a black border, less fixed on-screen text, found "
         "on the first frame (none is held back) and checked on every block of frames after; border and text "
         "pixels are sent back unchanged. full: the whole frame.",
+    )
+    content_mask: StreamMask | None = Field(
+        None,
+        description="The scope's content mask (255 scene, 0 border; as a job's `content_mask` part), used instead "
+        "of the detection: leave `content` unset with it. Frames must have its size.",
     )
 
     def job_options(self) -> Any:
@@ -159,6 +195,58 @@ def finite(value: Any) -> Any:
 
 def short_errors(exc: ValidationError) -> str:
     return "; ".join(f"{'.'.join(str(p) for p in e['loc']) or 'message'}: {e['msg']}" for e in exc.errors())
+
+
+def mask_refused(code: str, message: str) -> Closing:
+    """A start message's content mask refused: one line, naming the mask by the client's name, then 1008."""
+    return Closing(CLOSE_POLICY, code, message, "bad content mask")
+
+
+def read_mask(mask: StreamMask, content: str, pixel_limit: int) -> ContentMask:
+    """The start message's content mask, decoded and read as a job's upload is (``content_mask_from_bytes``, the
+    engine's checks): its text is the client's name, never a server path. Closing (1008) with one line naming it
+    for a mask beside ``content`` other than the default, data that is not base64, more than
+    :data:`MAX_MASK_BYTES` bytes, over the pixel cap, or anything the engine refuses. Blocking: run in a thread."""
+    name = display_name(mask.name or MASK_FIELD)
+    if content != DEFAULT_CONTENT:
+        raise mask_refused(
+            "validation_error",
+            f"content mask {name}: a `{MASK_FIELD}` is used instead of content detection; leave `content` unset "
+            f"(or {DEFAULT_CONTENT!r}) with it, not {content!r}",
+        )
+    too_large = mask_refused(
+        "payload_too_large",
+        f"content mask {name}: larger than {MAX_MASK_BYTES} bytes (a mask is one grey channel of the frames' size: "
+        "send it as PNG, lossless WebP or binary PGM)",
+    )
+    if len(mask.data) > 4 * -(-MAX_MASK_BYTES // 3):  # decodes to more than MAX_MASK_BYTES: not even decoded
+        raise too_large
+    try:
+        data = base64.b64decode(mask.data, validate=True)
+    except ValueError as exc:  # binascii.Error, or a character outside ASCII
+        raise mask_refused(
+            "invalid_content_mask", f"content mask {name}: its data is not valid base64 ({exc})"
+        ) from None
+    if len(data) > MAX_MASK_BYTES:
+        raise too_large
+    try:
+        loaded = content_mask_from_bytes(data, name, pixel_limit)
+    except FrameTooLargeError as exc:
+        raise mask_over_cap(name, exc.width, exc.height, pixel_limit) from None
+    except ColonlightError as exc:
+        raise mask_refused("invalid_content_mask", f"content mask {exc}") from None
+    height, width = loaded.area.fov.shape
+    if width * height > pixel_limit:  # a header the size check could not read
+        raise mask_over_cap(name, width, height, pixel_limit)
+    return loaded
+
+
+def mask_over_cap(name: str, width: int, height: int, pixel_limit: int) -> Closing:
+    return mask_refused(
+        "frame_too_large",
+        f"content mask {name}: it is {width}x{height} ({width * height} pixels), over this server's limit of "
+        f"{pixel_limit} pixels a frame (COLONLIGHT_MAX_PIXELS)",
+    )
 
 
 class StreamSession:
@@ -225,7 +313,12 @@ class StreamSession:
         return value
 
     async def start(self, options: StreamStart) -> None:
-        """Build (or fetch) the method for ``options`` and a fresh stream of it; send ``ready``."""
+        """Read the start message's content mask if it has one, build (or fetch) the method for ``options`` and a
+        fresh stream of it; send ``ready``."""
+        mask: ContentMask | None = None
+        if options.content_mask is not None:  # decoded and read off the event loop: other streams go on
+            mask = await anyio.to_thread.run_sync(read_mask, options.content_mask, options.content, self.pixel_limit)
+            options = options.model_copy(update={"content_mask": None})  # its base64 is not kept for the stream
         try:
             spec = self.manager.method_spec(options.job_options())
             await self.manager.check_method(spec)
@@ -242,7 +335,9 @@ class StreamSession:
                 CLOSE_INTERNAL, "model_unavailable", f"the model could not be loaded: {exc}", "model unavailable"
             ) from None
         self.options = options
-        self.stream = live_content_stream(method, options.content)
+        # with a mask, the engine's own stream for it (``colonlight stream --content MASK``'s): its area on every
+        # frame, border pixels sent back unchanged, a frame of another size refused naming the mask
+        self.stream = live_content_stream(method, options.content if mask is None else mask)
         await self.send(
             {
                 "type": "ready",
@@ -251,7 +346,7 @@ class StreamSession:
                 "parameters": method.parameters(),
                 "format": options.format,
                 "frames": options.frames,
-                "content": options.content,
+                "content": options.content if mask is None else mask_setting(str(mask), mask.sha256),
                 "max_pixels": self.pixel_limit,
                 "max_frame_bytes": self.settings.stream_max_frame_bytes,
             }
@@ -263,8 +358,8 @@ class StreamSession:
         if kind == "start":
             if self.options is not None:
                 raise FrameError('"start" must be the first message; this stream has started already')
-            try:
-                await self.start(StreamStart.model_validate(message))
+            try:  # in a thread: a start message may carry a mask's megabytes of base64
+                await self.start(await anyio.to_thread.run_sync(StreamStart.model_validate, message))
             except ValidationError as exc:
                 raise Closing(
                     CLOSE_POLICY, "validation_error", f"bad start options: {short_errors(exc)}", "bad start options"
@@ -343,7 +438,7 @@ class StreamSession:
             try:
                 if message.get("bytes") is not None:
                     await self.handle_frame(message["bytes"], received)
-                elif not await self.handle_text(self.parse_text(message.get("text") or "")):
+                elif not await self.handle_text(await parse_off_loop(self.parse_text, message.get("text") or "")):
                     return
             except FrameError as exc:
                 self.errors += 1
@@ -361,10 +456,15 @@ def header_key_ok(ws: WebSocket, settings: Settings) -> bool:
     return key_is_valid(settings, *offered)
 
 
-def start_key(message: dict[str, Any]) -> str | None:
+async def parse_off_loop(parse: Callable[[str], T], text: str) -> T:
+    """``parse(text)``, in a thread for a long text (a start message with a content mask: megabytes of JSON)."""
+    return parse(text) if len(text) <= _LARGE_TEXT else await anyio.to_thread.run_sync(parse, text)
+
+
+async def start_key(message: dict[str, Any]) -> str | None:
     """The ``api_key`` of a first message that is a JSON start message, else None."""
     try:
-        value = parse_json(message.get("text") or "null")
+        value = await parse_off_loop(parse_json, message.get("text") or "null")
     except ValueError:
         return None
     key = value.get("api_key") if isinstance(value, dict) and value.get("type") == "start" else None
@@ -384,7 +484,7 @@ async def stream(ws: WebSocket) -> None:
         first: dict[str, Any] | None = None
         if not header_key_ok(ws, settings):  # a browser: the key may come in the start message
             first = await session.receive()
-            if not key_is_valid(settings, start_key(first)):
+            if not key_is_valid(settings, await start_key(first)):
                 raise Closing(
                     CLOSE_POLICY,
                     "unauthorized",

@@ -65,6 +65,19 @@ async function loadInfo() {
   }
 }
 
+function contentMaskForStream() {
+  // The content mask chosen in the form, for a /v1/stream start message's "content_mask": {name, data: the
+  // file's bytes in base64}, or null when none is chosen. A WebSocket message is JSON, hence base64.
+  const file = $("mask").files[0];
+  if (!file) return Promise.resolve(null);
+  return new Promise((resolve, reject) => {
+    const reader = new FileReader();
+    reader.onload = () => resolve({ name: file.name, data: String(reader.result).split(",", 2)[1] || "" });  // data:...;base64,<data>
+    reader.onerror = () => reject(new Error(`cannot read the content mask ${file.name}`));
+    reader.readAsDataURL(file);
+  });
+}
+
 function upload(file) {
   // XMLHttpRequest, not fetch: it reports upload progress.
   return new Promise((resolve, reject) => {

@@ -3,8 +3,8 @@
 // source frames instead of queueing them. Uses $, state and showError from app.js.
 "use strict";
 
-const live = { ws: null, media: null, running: false, frames: 0, gammas: [], pending: null, sentAt: 0,
-               startedAt: 0, lastSend: 0, rtts: [], grab: document.createElement("canvas"), timer: null };
+const live = { ws: null, media: null, running: false, masked: false, frames: 0, gammas: [], pending: null,
+               sentAt: 0, startedAt: 0, lastSend: 0, rtts: [], grab: document.createElement("canvas"), timer: null };
 const LIVE_PLOT_FRAMES = 300;
 const LIVE_MAX_WIDTH = 960;  // frames wider than this are scaled down before they are sent
 
@@ -68,9 +68,14 @@ async function liveStart(kind, file) {
   const ws = new WebSocket(streamUrl());
   ws.binaryType = "arraybuffer";
   live.ws = ws;
-  ws.onopen = () => {
+  ws.onopen = async () => {
     const start = { type: "start", method: $("method").value || undefined, format: "jpeg", quality: 85 };
     if (state.key) start.api_key = state.key;  // a browser cannot set headers on a WebSocket
+    try {  // the form's content mask, if one is chosen: used instead of the detection, as for a clip
+      const mask = await contentMaskForStream();
+      if (mask) start.content_mask = mask;
+      live.masked = Boolean(mask);
+    } catch (err) { showError(err.message); ws.close(); return; }
     ws.send(JSON.stringify(start));
   };
   ws.onmessage = (e) => onLiveMessage(ws, e.data);
@@ -145,7 +150,8 @@ function sendNextFrame(ws) {
     live.timer = setTimeout(() => sendNextFrame(ws), Math.max(wait, 10));
     return;
   }
-  const scale = Math.min(1, LIVE_MAX_WIDTH / video.videoWidth);
+  // a mask is of the source's frame size: frames are then sent at that size, never scaled down
+  const scale = live.masked ? 1 : Math.min(1, LIVE_MAX_WIDTH / video.videoWidth);
   const grab = live.grab;
   grab.width = Math.round(video.videoWidth * scale);
   grab.height = Math.round(video.videoHeight * scale);

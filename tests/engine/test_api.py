@@ -46,6 +46,7 @@ def test_all_is_sorted_and_pinned() -> None:
         "available_methods",
         "check_mask_output",
         "clip_frames",
+        "content_mask_from_bytes",
         "content_stream",
         "create_method",
         "default_workers",

@@ -7,6 +7,7 @@ every limit can be reached quickly. The results are checked against the engine r
 from __future__ import annotations
 
 import base64
+import hashlib
 import json
 import math
 import os
@@ -26,6 +27,7 @@ import pytest
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
+from colonlight import live_content_stream, load_content_mask
 from colonlight.methods import create_method
 
 from ..media import flat_png, make_clip
@@ -235,6 +237,113 @@ def test_a_bordered_picture_is_enhanced_inside_its_field_of_view(server: Service
                 assert all("content" not in r for r in records)
             ws.send(json.dumps({"type": "end"}))
             assert closed_with(ws)[0] == 1000
+
+
+# ---------------------------------------------------------------------------------------------- a content mask
+
+
+def scope_mask(w: int = 160, h: int = 120) -> np.ndarray:
+    """A scope's mask: a disc of scene (255) on border (0), with a patch of fixed text (128) inside it."""
+    mask = np.zeros((h, w), np.uint8)
+    cv2.circle(mask, (w // 2, h // 2), h // 2 - 6, 255, -1)
+    mask[h // 2 - 4 : h // 2 + 4, w // 2 - 20 : w // 2 + 20] = 128
+    return mask
+
+
+def mask_start(data: bytes | str, name: str = "scope.png", **options: Any) -> str:
+    """A start message carrying a content mask: the image file's bytes in base64 (or ``data`` as it is)."""
+    text = data if isinstance(data, str) else base64.b64encode(data).decode("ascii")
+    return json.dumps({"type": "start", **options, "content_mask": {"name": name, "data": text}})
+
+
+def test_a_content_mask_in_the_start_message_is_used_as_the_engine_uses_it(
+    server: ServiceServer, weights: Path, tmp_path: Path
+) -> None:
+    """The mask replaces the detection: ready records it by its name and hash (never a server path), every pixel
+    outside its scene comes back unchanged, the gammas are the engine's own with the same mask (``colonlight stream
+    --content MASK``'s stream), and a frame of another size is one ``bad_frame`` line naming the mask."""
+    frames = scene(4)  # texture everywhere: the border is not black, so only the mask can keep it
+    mask = scope_mask()
+    data = png(np.repeat(mask[..., None], 3, axis=2))
+    (tmp_path / "scope.png").write_bytes(data)
+    expected_stream = live_content_stream(
+        create_method("rnn", weights=str(weights), device="cpu"), load_content_mask(tmp_path / "scope.png")
+    )
+    expected = [(r.gamma, r.frame) for f in frames for r in expected_stream.push(f)]
+    with open_stream(server) as ws:
+        ws.send(mask_start(data, name="C:\\masks\\scope.png", format="png"))  # a path: its last part is the name
+        ready = recv_json(ws)
+        assert ready["type"] == "ready", ready
+        assert ready["content"] == {"mask": "scope.png", "sha256": hashlib.sha256(data).hexdigest()}
+        got = []
+        for f in frames:
+            ws.send(png(f))
+            record = recv_json(ws)
+            image = ws.recv(60)
+            assert record["type"] == "result" and isinstance(image, bytes), record
+            got.append((record, decode(image)))
+        ws.send(png(scene(1, 80, 60)[0]))
+        error = recv_json(ws)
+        assert error["code"] == "bad_frame" and "\n" not in error["message"], error
+        assert error["message"].endswith("frame is 80x60, the content mask scope.png is 160x120"), error
+        ws.send(png(frames[0]))  # the stream goes on
+        assert recv_json(ws)["index"] == 4 and isinstance(ws.recv(60), bytes)
+        ws.send(json.dumps({"type": "end"}))
+        code, _, tail = closed_with(ws)
+        assert (code, tail[-1]) == (1000, {"type": "end", "frames": 5, "errors": 1})
+    outside = mask != 255
+    for (record, image), frame, (gamma, engine_frame) in zip(got, frames, expected, strict=True):
+        assert np.array_equal(image[outside], frame[outside])  # border and text pixels: the client's own
+        assert record["gamma"] == pytest.approx(gamma, abs=1e-5)
+        assert np.abs(image.astype(int) - engine_frame).max() <= 1  # PNG: lossless, up to a LUT rounding
+    assert not np.array_equal(got[-1][1][~outside], frames[-1][~outside])  # past the seeds, the scene is enhanced
+
+
+def test_bad_content_masks_close_with_1008_in_one_line(server: ServiceServer) -> None:
+    """Each refused mask: one ``error`` line naming it by the client's name (never a server path), then 1008."""
+    grey = scope_mask()
+    colour = np.repeat(grey[..., None], 3, axis=2)
+    colour[..., 0] //= 2
+    cases: list[tuple[str, str, str]] = [
+        (
+            mask_start("bm90IGEgbWFzaw=!", name="bad.png"),
+            "invalid_content_mask",
+            "bad.png: its data is not valid base64",
+        ),
+        (
+            mask_start(jpeg(np.repeat(grey[..., None], 3, axis=2))),
+            "invalid_content_mask",
+            "a JPEG content mask is lossy",
+        ),
+        (mask_start(png(colour)), "invalid_content_mask", "scope.png: a content mask is grey (0 border, 255 scene)"),
+        (mask_start(png(np.zeros((120, 160, 3), np.uint8))), "invalid_content_mask", "no scene pixel (255)"),
+        (mask_start(b""), "invalid_content_mask", "scope.png: empty file (0 bytes)"),
+        (mask_start(flat_png(8000, 8000, 255), name="huge.png"), "frame_too_large", "huge.png: it is 8000x8000"),
+        (mask_start(png(colour), content="full"), "validation_error", "leave `content` unset (or 'auto')"),
+    ]
+    for start, code, text in cases:
+        with open_stream(server) as ws:
+            ws.send(start)
+            close, reason, messages = closed_with(ws)
+            message = messages[-1]["message"]
+            assert (close, messages[-1]["code"]) == (1008, code), messages
+            assert message.startswith("content mask ") and text in message, message
+            assert "\n" not in message and str(server.data_dir) not in message and "/tmp" not in message, message
+
+
+def test_a_content_mask_over_the_upload_cap_is_refused_before_it_is_decoded() -> None:
+    """Past ``MAX_MASK_BYTES`` (the job upload's cap) a mask is refused unread. Its start message is over 21 MiB,
+    past the test server's 1 MiB messages (and the default 16 MiB), so the check is called here as the route calls
+    it; the refusal goes out as every other mask refusal above."""
+    from colonlight_service.routes.stream import Closing, StreamMask, read_mask
+    from colonlight_service.uploads import MAX_MASK_BYTES
+
+    big = base64.b64encode(b"\0" * (MAX_MASK_BYTES + 1)).decode("ascii")
+    for data in (big, big + "AAAA" * 4):  # just over, decoded; and over before decoding
+        with pytest.raises(Closing) as info:
+            read_mask(StreamMask(name="big.pgm", data=data), "auto", 10**8)
+        assert (info.value.close_code, info.value.code) == (1008, "payload_too_large")
+        assert info.value.message.startswith(f"content mask big.pgm: larger than {MAX_MASK_BYTES} bytes")
 
 
 # ---------------------------------------------------------------------------------------------- the key and the cap

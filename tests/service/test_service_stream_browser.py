@@ -9,6 +9,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
+import numpy as np
 import pytest
 
 from ..service_server import ServiceServer
@@ -94,6 +95,25 @@ def test_live_mode_streams_the_camera_and_a_file(server: ServiceServer, tmp_path
             assert 4 <= sent <= 10 * 18 + 1  # at most 18 fps of a 10 s file; fewer when the server is busy
             assert page.eval_on_selector("#live-out", "c => [c.width, c.height]") == [320, 240]
             assert page.inner_text("#error") == ""
+
+            # the form's content mask goes with the stream: one of another size than the camera's 640x480 frames
+            # is named in each frame's error (so the server has it), one of their size is used without a word
+            for name, (w, h) in (("wrong.pgm", (64, 48)), ("scope.pgm", (640, 480))):
+                mask = np.zeros((h, w), np.uint8)
+                mask[h // 8 : h - h // 8, w // 8 : w - w // 8] = 255
+                (tmp_path / name).write_bytes(b"P5\n%d %d\n255\n" % (w, h) + mask.tobytes())
+                page.set_input_files("#mask", str(tmp_path / name))
+                page.click("#live-camera")
+                page.wait_for_function("document.querySelector('#live-status').dataset.status === 'live'")
+                if name == "wrong.pgm":
+                    page.wait_for_function("document.querySelector('#error').textContent.includes('wrong.pgm')")
+                    assert "640x480" in page.inner_text("#error") and "64x48" in page.inner_text("#error")
+                else:
+                    page.wait_for_function("Number(document.querySelector('#live-out').dataset.frames) >= 4")
+                    assert page.inner_text("#error") == ""
+                page.click("#live-stop")
+                page.wait_for_function("document.querySelector('#live-status').dataset.status === 'done'")
+                page.evaluate("() => showError('')")
             assert not errors, errors
             page.screenshot(path=str(tmp_path / "live.png"), full_page=True)
         finally:
