@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from .display import error_line
+from .display import error_line, printable
 
 
 def serve(
@@ -21,6 +21,7 @@ def serve(
     from colonlight_service.app import create_app
     from colonlight_service.http_protocol import header_deadline_protocol
     from colonlight_service.settings import Settings
+    from colonlight_service.workspace import Workspace
     from pydantic import ValidationError
 
     overrides: dict[str, object] = {}
@@ -33,6 +34,13 @@ def serve(
     except ValidationError as exc:
         for err in exc.errors():
             error_line(f"COLONLIGHT_{'_'.join(str(p) for p in err['loc']).upper()}: {err['msg']}")
+        raise typer.Exit(2) from None
+    try:  # made here, before uvicorn: a folder that cannot be made (under /proc, read-only) was a startup traceback
+        Workspace(settings.data_dir).create()
+    except OSError as exc:
+        where = printable(str(exc.filename or settings.data_dir))
+        cause = "a file is in the way of a folder" if isinstance(exc, FileExistsError) else exc.strerror or str(exc)
+        error_line(f"COLONLIGHT_DATA_DIR: cannot create or write {where}: {cause}")
         raise typer.Exit(2) from None
     import copy
 

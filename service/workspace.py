@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import errno
+import os
 import secrets
 import shutil
 from pathlib import Path
@@ -21,10 +23,18 @@ class Workspace:
         self.sync_dir = self.root / "sync"
         self.table = self.root / "jobs.sqlite3"
 
-    def prepare(self) -> None:
-        """Make the folders, and remove the partial uploads and sync work of a process that died."""
+    def create(self) -> None:
+        """Make the folders (kept if there); OSError if they cannot be made or written. ``colonlight serve`` calls
+        it before the server starts, so that a data folder no process could use is one line, not uvicorn's
+        "Application startup failed" traceback."""
         for d in (self.jobs_dir, self.uploads_dir, self.sync_dir):
             d.mkdir(parents=True, exist_ok=True)
+            if not os.access(d, os.W_OK | os.X_OK):
+                raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(d))
+
+    def prepare(self) -> None:
+        """Make the folders, and remove the partial uploads and sync work of a process that died."""
+        self.create()
         for leftover in list(self.uploads_dir.iterdir()) + list(self.sync_dir.iterdir()):
             remove(leftover)
 

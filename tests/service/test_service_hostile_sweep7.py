@@ -110,6 +110,22 @@ def test_a_data_folder_that_cannot_be_one_stops_the_server_in_one_line(tmp_path:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "loop", "server.log"]
 
 
+def test_a_data_folder_whose_subfolder_cannot_be_made_stops_the_server_in_one_line(tmp_path: Path) -> None:
+    """A file where the server's ``jobs/`` folder goes passes the settings' check (the data folder itself is one)
+    and was uvicorn's "Application startup failed" traceback: ``serve`` now makes the folders before it starts."""
+    data = tmp_path / "data"
+    data.mkdir()
+    (data / "jobs").write_bytes(b"the user's own")
+    srv = ServiceServer(data, {"COLONLIGHT_METHOD": "gamma"}, log=tmp_path / "server.log")
+    with pytest.raises(RuntimeError, match="server exited with 2"):
+        srv.start(timeout=60)
+    lines = [line for line in srv.log().splitlines() if line.strip()]
+    assert lines == [
+        f"error: COLONLIGHT_DATA_DIR: cannot create or write {data}/jobs: a file is in the way of a folder"
+    ]
+    assert (data / "jobs").read_bytes() == b"the user's own"
+
+
 def test_a_negative_zero_rate_is_recorded_as_every_frame() -> None:
     """``fps=-0`` is a usable rate (every frame) and was recorded as ``-0.0`` in the job's options."""
     from colonlight_service.request_options import JobOptions
