@@ -8,7 +8,7 @@ import typer
 
 from colonlight.limits import DEFAULT_FPS, MAX_FPS
 
-from .display import console, error_line
+from .display import console, error_line, printable
 from .interrupts import interruptible
 from .options import MAX_RENDER_SIDE, clip_mix
 
@@ -42,6 +42,7 @@ def synth(
     clean_seeds: float = clip_mix("clean-seeds", "--clean-seeds", 0.0),
 ) -> None:
     """Render synthetic colonoscopy clips: frames/, clean/, depth/, poses.txt (TUM), intrinsics.json, lighting.json."""
+    from colonlight.atomic import parent_problem
     from colonlight.synth import BORDERS, SPLITS, OverlaySpec, make_dataset, parse_split
 
     try:
@@ -51,6 +52,10 @@ def synth(
     if border not in BORDERS:
         raise typer.BadParameter(f"choose one of {', '.join(BORDERS)}", param_hint="--border")
     overlay = OverlaySpec(border=border, fov=fov, text=text)  # type: ignore[arg-type]
+    blocked = parent_problem(output / "clip")  # the folder, or a parent, is a file: said for what it is, first
+    if blocked:
+        error_line(f"{printable(str(output))}: cannot write the clips: {blocked}")
+        raise typer.Exit(1)
     try:
         paths = make_dataset(
             output,

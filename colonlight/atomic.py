@@ -18,6 +18,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from .errors import os_error_cause
+
 TMP_MARK = ".colonlight-tmp"
 _UMASK = os.umask(0)
 os.umask(_UMASK)
@@ -179,3 +181,20 @@ def _delete_files(paths: Iterable[Path]) -> int:
             p.unlink(missing_ok=True)
             count += 1
     return count
+
+
+def parent_problem(path: Path) -> str | None:
+    """Why no file or folder can be made at ``path`` because of its parents (the nearest existing one is a file,
+    a dangling link, or cannot be looked at), or None. Nothing is created: a command asks before its work, so a
+    bad path costs nothing and leaves nothing."""
+    for parent in Path(path).parents:
+        try:
+            if parent.is_dir():
+                return None
+            if parent.exists():
+                return f"{parent} is a file, not a folder"
+            if os.path.lexists(parent):
+                return f"{parent} is a dangling symbolic link (or a link loop)"
+        except OSError as exc:  # a name past NAME_MAX, a folder that cannot be searched
+            return f"{parent}: {os_error_cause(exc)}"
+    return None

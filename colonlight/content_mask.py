@@ -21,7 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .atomic import atomic_path, read_regular_file
+from .atomic import atomic_path, parent_problem, read_regular_file
 from .content_area import ContentArea
 from .errors import InputError, OptionError
 from .frames import IMAGE_SUFFIXES, check_image_size, decode_image
@@ -102,8 +102,8 @@ def pgm_bytes(image: np.ndarray) -> bytes:
 def check_mask_output(path: Path, clip: Path | None = None) -> str:
     """``"pgm"`` or ``"png"``, the format a mask named ``path`` is written in; OptionError for any other name, and
     for a name that would change ``clip`` (the clip the mask is found on): the clip file itself (a video may be
-    named ``.png``), or an image name in a frame-folder clip (read as one of its frames). A shell checks it
-    before the clip is read."""
+    named ``.png``), or an image name in a frame-folder clip (read as one of its frames); and for a path no file
+    can be made at (a parent that is a file). A shell checks it before the clip is read."""
     suffix = Path(path).suffix.lower()
     if suffix not in MASK_SUFFIXES:
         wanted = " or ".join(MASK_SUFFIXES)
@@ -111,6 +111,9 @@ def check_mask_output(path: Path, clip: Path | None = None) -> str:
     clash = _clip_clash(Path(clip), Path(path)) if clip is not None else None
     if clash:
         raise OptionError(f"{path}: {clash}")
+    blocked = parent_problem(Path(path))
+    if blocked:  # before the clip is read: it was the write's bare "File exists", after the detection
+        raise OptionError(f"{path}: {blocked}")
     return suffix[1:]
 
 

@@ -19,12 +19,11 @@ import numpy as np
 import torch
 
 from . import __version__
-from .atomic import read_json, remove_stale_temporaries_of, write_bytes_atomic, write_json_atomic
+from .atomic import parent_problem, read_json, remove_stale_temporaries_of, write_bytes_atomic, write_json_atomic
 from .checkpoint import LoadedWeights, card_path
 from .correction import CURVE_KNOTS, CURVE_SLOPE_MAX, LOG_GAIN_SPAN, LOG_GAMMA_SPAN, SLOPE_OFFSET
 from .methods.rnn import CURVE_SUMMARY_AT, GAIN_MAX, GAIN_MIN, GAMMA_MAX, GAMMA_MIN, PRESAMPLE, SEED_FRAMES
 from .onnx_step import ExportError, StepSignature, compare_with_torch, cpu_session, export_model_bytes
-from .outdir import parent_problem
 from .scene_cut import default_threshold
 from .scene_cut import host_rule as scene_cut_rule
 from .tone_match import default_weight, host_rule

@@ -48,23 +48,6 @@ _HELD: dict[tuple[int, int], list[int]] = {}  # lock file identity -> [fd, depth
 _HELD_GUARD = threading.Lock()
 
 
-def parent_problem(path: Path) -> str | None:
-    """Why no file or folder can be made at ``path`` because of its parents (the nearest existing one is a file,
-    a dangling link, or cannot be looked at), or None. Nothing is created: a command asks before its work, so a
-    bad path costs nothing and leaves nothing."""
-    for parent in Path(path).parents:
-        try:
-            if parent.is_dir():
-                return None
-            if parent.exists():
-                return f"{parent} is a file, not a folder"
-            if os.path.lexists(parent):
-                return f"{parent} is a dangling symbolic link (or a link loop)"
-        except OSError as exc:  # a name past NAME_MAX, a folder that cannot be searched
-            return f"{parent}: {os_error_cause(exc)}"
-    return None
-
-
 def prepare_output(out_root: Path) -> Path:
     """Create ``out_root`` if needed and check that it is a folder this process can write; OutputError if not."""
     out_root = Path(out_root)

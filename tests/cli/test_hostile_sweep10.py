@@ -1,7 +1,8 @@
 """Hostile-input sweep 10: paths whose parents or links cannot be used, named for what they are.
 
 Defects found: ``export -o afile/x.onnx`` built and checked the whole graph, then said only "File exists"
-(tests/cli/test_failures.py has that case; a link loop in the path is here); a clip
+(tests/cli/test_failures.py has that case; a link loop in the path is here), and ``content CLIP -o afile/m.pgm``
+read the whole clip first; a clip
 that is a symbolic link loop was "no such file or folder" to ``train`` and ``evaluate``, which sent the user looking
 for a file that is there.
 """
@@ -54,3 +55,12 @@ def test_evaluating_a_link_loop_names_the_loop(tmp_path: Path) -> None:
     code, output = invoke("evaluate", str(loop), "-o", str(tmp_path / "ev"), "--methods", "none", "--no-colmap")
     assert f"{loop}: symbolic link loop" in output, output
     assert "no such file" not in output
+
+
+def test_a_content_mask_under_a_file_is_refused_before_the_clip_is_read(tmp_path: Path) -> None:
+    blocker = tmp_path / "afile"
+    blocker.write_bytes(b"x")
+    clip = tmp_path / "never read.mp4"  # not there: the output is judged first
+    code, output = invoke("content", str(clip), "-o", str(blocker / "m.pgm"))
+    assert code == 2 and f"{blocker} is a file, not a folder" in output.replace("\n", " ").replace("│", ""), output
+    assert blocker.read_bytes() == b"x"

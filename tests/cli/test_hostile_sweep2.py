@@ -115,7 +115,7 @@ def test_synth_refuses_absurd_values_and_an_output_that_is_a_file(tmp_path: Path
     code, output = run_colonlight("synth", str(afile), *small)
     assert code == 1, output
     lines = [line for line in output.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith(f"error: {afile}") and "Not a directory" in lines[0], output
+    assert lines == [f"error: {afile}: cannot write the clips: {afile} is a file, not a folder"], output
     assert afile.read_text() == "x"
 
 
