@@ -30,7 +30,9 @@ Model
     with the camera, so their energy misranks starts. A zero-motion start run coarse to fine beside the
     constant-motion one, the lower finest-level energy kept, does too: on 24 validation clips the clean
     frames' tracked fraction falls from 0.803 to 0.775 with brightness fixed and from 0.812 to 0.802 fitted
-    (README, the default model, session 34).)
+    (README, the default model, session 34). DSO's re-track rule, other starts tried only when the finest RMSE
+    exceeds 1.5x the last frame's, changes no tracked fraction by more than 0.003 and never fires on the clip
+    that trap was found on (session 35).)
 
 Points
     Per level, cells sized for about ``n_points / 4^level`` points (at least ``min_level_points``) each give
