@@ -166,21 +166,28 @@ def check_image_size(path: Path, max_pixels: int | None = None, data: bytes | No
 
 
 _OPENCV_LOG_LOCK = threading.Lock()
+_opencv_silencers = [0, 0]  # [decodes in progress, the log level to restore when the last one ends]
 
 
 @contextlib.contextmanager
 def _opencv_quiet() -> Iterator[None]:
     """OpenCV's own logging off while an image decodes: a decoder that fails logs "[ERROR:...] imdecode_ ..." to
     stderr, beside the one line that names the file; the failure is reported by the caller. The log level is
-    process-wide, hence the lock (decodes in other threads wait rather than restore the wrong level)."""
+    process-wide, so decodes share one silence: the first to start saves the level, the last to end restores it,
+    and threads decode side by side (a lock held across the decode serialised every thread's images)."""
     log = cv2.utils.logging
     with _OPENCV_LOG_LOCK:
-        level = log.getLogLevel()
-        log.setLogLevel(log.LOG_LEVEL_SILENT)
-        try:
-            yield
-        finally:
-            log.setLogLevel(level)
+        if _opencv_silencers[0] == 0:
+            _opencv_silencers[1] = log.getLogLevel()
+            log.setLogLevel(log.LOG_LEVEL_SILENT)
+        _opencv_silencers[0] += 1
+    try:
+        yield
+    finally:
+        with _OPENCV_LOG_LOCK:
+            _opencv_silencers[0] -= 1
+            if _opencv_silencers[0] == 0:
+                log.setLogLevel(_opencv_silencers[1])
 
 
 def _as_bgr(img: np.ndarray | None) -> np.ndarray | None:

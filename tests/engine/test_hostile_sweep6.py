@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -78,6 +79,36 @@ def test_a_one_channel_float_tiff_is_read_as_grey_without_opencv_noise(
     broken.write_bytes(buf.tobytes()[:40])
     with pytest.raises(InputError, match="broken.png: not a readable image"):
         read_image(broken)
+    captured = capfd.readouterr()
+    assert "ERROR" not in captured.err and "imdecode" not in captured.err, captured.err
+
+
+def test_threads_decode_side_by_side_quietly_and_the_log_level_comes_back(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """Decodes in several threads, broken ones among them, share one silence of OpenCV's log: none prints, and
+    the level the process had is back when the last ends (a lock held across each decode serialised them)."""
+    good, broken = tmp_path / "good.png", tmp_path / "broken.png"
+    png = cv2.imencode(".png", np.full((64, 64, 3), 7, np.uint8))[1].tobytes()
+    good.write_bytes(png)
+    broken.write_bytes(png[:40])
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_WARNING)
+    try:
+
+        def read(i: int) -> str:
+            try:
+                return str(read_image(good if i % 2 else broken).shape)
+            except InputError as exc:
+                return str(exc)
+
+        with ThreadPoolExecutor(8) as pool:
+            answers = list(pool.map(read, range(200)))
+        assert answers.count("(64, 64, 3)") == 100
+        assert all("broken.png: not a readable image" in a for a in answers[::2])
+        assert cv2.utils.logging.getLogLevel() == cv2.utils.logging.LOG_LEVEL_WARNING
+    finally:
+        cv2.utils.logging.setLogLevel(level)
     captured = capfd.readouterr()
     assert "ERROR" not in captured.err and "imdecode" not in captured.err, captured.err
 
