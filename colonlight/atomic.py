@@ -8,6 +8,7 @@ filesystem is atomic, so after a crash or ``kill -9`` a file either exists compl
 from __future__ import annotations
 
 import errno
+import fcntl
 import glob
 import json
 import os
@@ -198,3 +199,17 @@ def parent_problem(path: Path) -> str | None:
         except OSError as exc:  # a name past NAME_MAX, a folder that cannot be searched
             return f"{parent}: {os_error_cause(exc)}"
     return None
+
+
+@contextmanager
+def files_written_together(folder: Path) -> Iterator[None]:
+    """Hold ``folder`` (an exclusive ``flock`` on the folder itself: no lock file is left behind) while a set of
+    files that belong together is written into it, as ``export``'s graph and sidecar are: two writers of the same
+    names then leave one writer's whole set, never one's graph beside the other's sidecar, and neither removes the
+    other's temporaries as stale mid-write. Another process waits its turn (the writes take milliseconds)."""
+    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # releases the lock

@@ -19,7 +19,14 @@ import numpy as np
 import torch
 
 from . import __version__
-from .atomic import parent_problem, read_json, remove_stale_temporaries_of, write_bytes_atomic, write_json_atomic
+from .atomic import (
+    files_written_together,
+    parent_problem,
+    read_json,
+    remove_stale_temporaries_of,
+    write_bytes_atomic,
+    write_json_atomic,
+)
 from .checkpoint import LoadedWeights, card_path
 from .correction import CURVE_KNOTS, CURVE_SLOPE_MAX, LOG_GAIN_SPAN, LOG_GAMMA_SPAN, SLOPE_OFFSET
 from .methods.rnn import CURVE_SUMMARY_AT, GAIN_MAX, GAIN_MIN, GAMMA_MAX, GAMMA_MIN, PRESAMPLE, SEED_FRAMES
@@ -260,11 +267,12 @@ def export_onnx(weights: LoadedWeights, out: Path, size: int, check: bool = True
                 raise ExportError(f"{out}: ONNX Runtime differs from torch by {worst:.3g} (> {EXPORT_TOLERANCE})")
     record = sidecar_record(weights, sig, described, out.name, hashlib.sha256(data).hexdigest(), opset, worst)
     out.parent.mkdir(parents=True, exist_ok=True)
-    # an export killed while writing left its temporaries beside ``out``: only theirs go, the folder is the user's
-    remove_stale_temporaries_of(out)
-    remove_stale_temporaries_of(onnx_sidecar_path(out))
-    write_bytes_atomic(out, data)
-    write_json_atomic(onnx_sidecar_path(out), record)
+    with files_written_together(out.parent):  # the graph and its sidecar are one export's, whoever else exports
+        # an export killed while writing left its temporaries beside ``out``: only theirs go, the folder is the user's
+        remove_stale_temporaries_of(out)
+        remove_stale_temporaries_of(onnx_sidecar_path(out))
+        write_bytes_atomic(out, data)
+        write_json_atomic(onnx_sidecar_path(out), record)
     return record
 
 

@@ -10,6 +10,7 @@ for a file that is there.
 from __future__ import annotations
 
 import os
+import threading
 from pathlib import Path
 
 import pytest
@@ -17,6 +18,7 @@ from colonlight_cli.main import app
 from typer.testing import CliRunner
 
 from colonlight import DEFAULT_WEIGHTS, InputError
+from colonlight.atomic import files_written_together
 from colonlight.sources import clip_kind
 
 
@@ -64,3 +66,22 @@ def test_a_content_mask_under_a_file_is_refused_before_the_clip_is_read(tmp_path
     code, output = invoke("content", str(clip), "-o", str(blocker / "m.pgm"))
     assert code == 2 and f"{blocker} is a file, not a folder" in output.replace("\n", " ").replace("│", ""), output
     assert blocker.read_bytes() == b"x"
+
+
+def test_files_written_together_hold_their_folder_until_done(tmp_path: Path) -> None:
+    """``export`` writes its graph and sidecar under this hold: a second writer (here a thread; another process
+    alike, flock being per open file) waits, so two exports to one name leave one export's pair, never a graph
+    beside another model's sidecar, and neither removes the other's temporaries as stale mid-write."""
+    entered = threading.Event()
+
+    def second_writer() -> None:
+        with files_written_together(tmp_path):
+            entered.set()
+
+    with files_written_together(tmp_path):
+        other = threading.Thread(target=second_writer)
+        other.start()
+        assert not entered.wait(0.3), "a second writer got in while the first held the folder"
+    assert entered.wait(10)
+    other.join()
+    assert list(tmp_path.iterdir()) == []  # no lock file left behind
