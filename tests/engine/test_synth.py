@@ -205,20 +205,20 @@ def test_make_dataset_parallel_and_resume(tmp_path: Path) -> None:
 
 
 def test_make_dataset_mixes_in_steady_clips_by_seed(tmp_path: Path) -> None:
-    def steady(fraction: float, where: Path) -> list[bool]:
-        dirs = make_dataset(where, 12, seed=40, width=32, height=32, n_frames=3, workers=1, steady_fraction=fraction)
+    def steady(fraction: float, where: Path, n: int = 6) -> list[bool]:
+        dirs = make_dataset(where, n, seed=40, width=32, height=32, n_frames=3, workers=1, steady_fraction=fraction)
         return [json.loads((d / "synth.json").read_text())["config"]["steady"] for d in dirs]
 
     mixed = steady(0.5, tmp_path / "a")
-    assert 0 < sum(mixed) < 12 and steady(0.5, tmp_path / "b") == mixed  # chosen by the seeds
-    assert not any(steady(0.0, tmp_path / "c")) and all(steady(1.0, tmp_path / "d"))
+    assert 0 < sum(mixed) < 6 and steady(0.5, tmp_path / "b") == mixed  # chosen by the seeds
+    assert not any(steady(0.0, tmp_path / "c", 3)) and all(steady(1.0, tmp_path / "d", 3))
 
 
 def test_make_dataset_forces_close_occluders_by_seed(tmp_path: Path) -> None:
-    def modes(fraction: float, where: Path) -> list[str]:
+    def modes(fraction: float, where: Path, n: int = 6) -> list[str]:
         dirs = make_dataset(
             where,
-            12,
+            n,
             seed=40,
             width=32,
             height=32,
@@ -230,8 +230,8 @@ def test_make_dataset_forces_close_occluders_by_seed(tmp_path: Path) -> None:
         return [json.loads((d / "synth.json").read_text())["config"]["close_occluder"] for d in dirs]
 
     mixed = modes(0.5, tmp_path / "a")
-    assert 0 < mixed.count("force") < 12 and modes(0.5, tmp_path / "b") == mixed  # chosen by the seeds
-    assert set(modes(0.0, tmp_path / "c")) == {"random"} and set(modes(1.0, tmp_path / "d")) == {"force"}
+    assert 0 < mixed.count("force") < 6 and modes(0.5, tmp_path / "b") == mixed  # chosen by the seeds
+    assert set(modes(0.0, tmp_path / "c", 3)) == {"random"} and set(modes(1.0, tmp_path / "d", 3)) == {"force"}
 
 
 def test_quaternion_and_depth_encoding() -> None:
