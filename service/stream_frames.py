@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Literal
 
-import cv2
 import numpy as np
 
-from colonlight import encode_image
+from colonlight import InputError, encode_image
+from colonlight.frames import decode_image
 from colonlight.limits import DEFAULT_MAX_PIXELS, MAX_PIXELS_ENV, max_pixels_setting
 
 ImageFormat = Literal["jpeg", "png"]
@@ -88,12 +89,17 @@ def decode_frame(data: bytes, limit: int) -> np.ndarray:
             f"the {header.format.upper()} is {header.width}x{header.height} = "
             f"{header.width * header.height} pixels, over the limit of {limit} ({MAX_PIXELS_ENV})"
         )
-    bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-    if bgr is None or bgr.shape[:2] != (header.height, header.width):
-        raise FrameError(
-            f"the {header.format.upper()} ({header.width}x{header.height}) could not be decoded: corrupt or truncated"
-        )
-    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    corrupt = FrameError(
+        f"the {header.format.upper()} ({header.width}x{header.height}) could not be decoded: corrupt or truncated"
+    )
+    try:  # the engine's decoder, as for a folder of frames: EXIF orientation applied, 16-bit PNG rounded, quiet
+        rgb = decode_image(np.frombuffer(data, np.uint8), Path(header.format))
+    except InputError:
+        raise corrupt from None
+    # a JPEG turned by its EXIF orientation (a phone's) has its header's sides swapped: it was refused as corrupt
+    if rgb.shape[:2] not in ((header.height, header.width), (header.width, header.height)):
+        raise corrupt
+    return rgb
 
 
 def encode_frame(rgb: np.ndarray, fmt: ImageFormat, quality: int) -> bytes:

@@ -636,3 +636,24 @@ def test_stopping_the_server_closes_open_streams(tmp_path: Path) -> None:
     finally:
         srv.stop()
     assert "Traceback" not in srv.log(), srv.log()
+
+
+def test_a_jpeg_turned_by_its_exif_orientation_is_read_as_a_frame_folder_reads_it(tmp_path: Path) -> None:
+    """A phone's JPEG (EXIF orientation 6: turn 90 degrees) decodes with its header's sides swapped; the stream
+    refused it as "corrupt or truncated". It is now the engine's frame, upright, as ``enhance`` reads a file."""
+    from io import BytesIO
+
+    from colonlight_service.stream_frames import decode_frame
+    from PIL import Image
+
+    from colonlight.frames import read_image
+
+    image = Image.fromarray(np.random.default_rng(0).integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    exif = image.getexif()
+    exif[0x0112] = 6  # Orientation: rotate 90 CW to display
+    buf = BytesIO()
+    image.save(buf, "JPEG", exif=exif.tobytes())
+    (tmp_path / "phone.jpg").write_bytes(buf.getvalue())
+    frame = decode_frame(buf.getvalue(), 10**6)
+    assert frame.shape == (64, 48, 3)
+    np.testing.assert_array_equal(frame, read_image(tmp_path / "phone.jpg"))
