@@ -152,19 +152,32 @@ def test_an_uploaded_mask_is_used_as_enhance_uses_it(
     assert list((server.data_dir / "sync").iterdir()) == [] and leftovers(server) == []
 
 
+def refused_on_both_routes(
+    client: httpx.Client, server: ServiceServer, clip: Path, mask: Path, status: int, **fields: str
+) -> list[str]:
+    """The one-line messages of ``status`` that both upload routes give ``mask``; none names a server path."""
+    messages = []
+    for route in ("/v1/jobs", "/v1/enhance"):
+        body = assert_json_error(post(client, route, clip, mask, **fields), status)
+        assert "\n" not in body["message"] and str(server.data_dir) not in body["message"], body
+        messages.append(f"{body['code']}: {body['message']}")
+    return messages
+
+
+def assert_nothing_left(server: ServiceServer, jobs_before: list[Path]) -> None:
+    assert leftovers(server) == [] and list((server.data_dir / "sync").iterdir()) == []
+    assert sorted((server.data_dir / "jobs").iterdir()) == jobs_before
+
+
 def test_a_jpeg_mask_is_refused_naming_it_with_nothing_left(
     client: httpx.Client, server: ServiceServer, media: dict[str, Path]
 ) -> None:
     jobs_before = sorted((server.data_dir / "jobs").iterdir())
-    for route in ("/v1/jobs", "/v1/enhance"):
-        body = assert_json_error(post(client, route, media["clip"], media["jpg"]), 422)
-        assert body["code"] == "invalid_content_mask"
-        assert "scope.jpg" in body["message"] and "JPEG" in body["message"] and "\n" not in body["message"]
-        assert str(server.data_dir) not in body["message"]
+    for message in refused_on_both_routes(client, server, media["clip"], media["jpg"], 422):
+        assert message.startswith("invalid_content_mask: ") and "scope.jpg" in message and "JPEG" in message
     both = assert_json_error(post(client, "/v1/jobs", media["clip"], media["pgm"], content="full"), 422)
     assert "scope.pgm" in both["message"] and "content" in both["message"]
-    assert leftovers(server) == [] and list((server.data_dir / "sync").iterdir()) == []
-    assert sorted((server.data_dir / "jobs").iterdir()) == jobs_before
+    assert_nothing_left(server, jobs_before)
 
 
 def test_a_mask_over_the_pixel_cap_is_413_naming_it_with_nothing_left(
@@ -172,12 +185,9 @@ def test_a_mask_over_the_pixel_cap_is_413_naming_it_with_nothing_left(
 ) -> None:
     """Judged from the PNG's header (a few KiB of bytes can declare a bomb), before anything is decoded."""
     jobs_before = sorted((server.data_dir / "jobs").iterdir())
-    for route in ("/v1/jobs", "/v1/enhance"):
-        body = assert_json_error(post(client, route, media["clip"], media["huge"]), 413)
-        assert "huge.png" in body["message"] and "1001x1000" in body["message"], body
-        assert "\n" not in body["message"] and str(server.data_dir) not in body["message"]
-    assert leftovers(server) == [] and list((server.data_dir / "sync").iterdir()) == []
-    assert sorted((server.data_dir / "jobs").iterdir()) == jobs_before
+    for message in refused_on_both_routes(client, server, media["clip"], media["huge"], 413):
+        assert "huge.png" in message and "1001x1000" in message, message
+    assert_nothing_left(server, jobs_before)
 
 
 def test_a_mask_of_another_size_fails_the_job_in_one_line(
