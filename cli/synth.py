@@ -42,7 +42,7 @@ def synth(
     clean_seeds: float = clip_mix("clean-seeds", "--clean-seeds", 0.0),
 ) -> None:
     """Render synthetic colonoscopy clips: frames/, clean/, depth/, poses.txt (TUM), intrinsics.json, lighting.json."""
-    from colonlight.atomic import parent_problem
+    from colonlight import parent_problem
     from colonlight.synth import BORDERS, SPLITS, OverlaySpec, make_dataset, parse_split
 
     try:

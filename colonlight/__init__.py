@@ -21,6 +21,7 @@ __version__ = "0.1.0"
 # only for what the clip needs (no torch for ``--method none``; nothing of training or evaluation).
 _EXPORTS: dict[str, str] = {
     "atomic_path": "atomic",
+    "parent_problem": "atomic",
     "parse_json": "atomic",
     "read_json": "atomic",
     "write_json_atomic": "atomic",
@@ -53,6 +54,7 @@ _EXPORTS: dict[str, str] = {
     "CheckpointError": "errors",
     "ColonlightError": "errors",
     "DeviceError": "errors",
+    "decode_image": "frames",
     "encode_image": "frames",
     "InputError": "errors",
     "OptionError": "errors",
@@ -106,7 +108,7 @@ _EXPORTS: dict[str, str] = {
 }
 
 if TYPE_CHECKING:
-    from .atomic import atomic_path, parse_json, read_json, write_json_atomic
+    from .atomic import atomic_path, parent_problem, parse_json, read_json, write_json_atomic
     from .batch import MANIFEST_FILE, ManifestError, default_workers, run_batch, warm_method
     from .checkpoint import DEFAULT_WEIGHTS, LoadedWeights, load_weights, save_weights
     from .cluster import ClusterRunner
@@ -130,7 +132,7 @@ if TYPE_CHECKING:
     from .device import resolve_device
     from .discovery import VIDEO_SUFFIXES, PathProblem, discover, discover_clips, synthetic_folder_of
     from .errors import CheckpointError, ColonlightError, DeviceError, InputError, OptionError
-    from .frames import encode_image
+    from .frames import decode_image, encode_image
     from .jobs import ClipJob, ClipOutcome, MethodSpec, estimate_frames, method_for, run_clip
     from .methods import FrameResult, Method, MethodStream, available_methods, create_method, is_available
     from .methods.rnn import parse_model_size
@@ -203,6 +205,7 @@ __all__ = [
     "content_mask_from_bytes",
     "content_stream",
     "create_method",
+    "decode_image",
     "default_workers",
     "discover",
     "discover_clips",
@@ -224,6 +227,7 @@ __all__ = [
     "network_threads",
     "onnx_sidecar_path",
     "output_lock",
+    "parent_problem",
     "parse_content",
     "parse_content_mode",
     "parse_frame_steps",

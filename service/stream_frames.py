@@ -10,8 +10,7 @@ from typing import Literal
 
 import numpy as np
 
-from colonlight import InputError, encode_image
-from colonlight.frames import decode_image
+from colonlight import InputError, decode_image, encode_image
 from colonlight.limits import DEFAULT_MAX_PIXELS, MAX_PIXELS_ENV, max_pixels_setting
 
 ImageFormat = Literal["jpeg", "png"]
