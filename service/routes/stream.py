@@ -164,11 +164,13 @@ class StreamSlots:
 
 
 class Closing(Exception):
-    """End the stream: send ``{"type": "error", code, message}``, then close with ``close_code``."""
+    """End the stream: send ``{"type": "error", code, message}``, then close with ``close_code``. ``rejected``:
+    the reason label of ``colonlight_requests_rejected_total`` to count, for a refusal a job upload counts too."""
 
-    def __init__(self, close_code: int, code: str, message: str, reason: str) -> None:
+    def __init__(self, close_code: int, code: str, message: str, reason: str, rejected: str | None = None) -> None:
         super().__init__(message)
         self.close_code, self.code, self.message, self.reason = close_code, code, message, reason
+        self.rejected = rejected
 
 
 class ClientGone(Exception):
@@ -197,9 +199,10 @@ def short_errors(exc: ValidationError) -> str:
     return "; ".join(f"{'.'.join(str(p) for p in e['loc']) or 'message'}: {e['msg']}" for e in exc.errors())
 
 
-def mask_refused(code: str, message: str) -> Closing:
-    """A start message's content mask refused: one line, naming the mask by the client's name, then 1008."""
-    return Closing(CLOSE_POLICY, code, message, "bad content mask")
+def mask_refused(code: str, message: str, rejected: str | None = "bad_content_mask") -> Closing:
+    """A start message's content mask refused: one line, naming the mask by the client's name, then 1008; counted
+    under the job upload's reason for the same refusal (``rejected``; none for a misused option, as for a job)."""
+    return Closing(CLOSE_POLICY, code, message, "bad content mask", rejected)
 
 
 def read_mask(mask: StreamMask, content: str, pixel_limit: int) -> ContentMask:
@@ -213,11 +216,13 @@ def read_mask(mask: StreamMask, content: str, pixel_limit: int) -> ContentMask:
             "validation_error",
             f"content mask {name}: a `{MASK_FIELD}` is used instead of content detection; leave `content` unset "
             f"(or {DEFAULT_CONTENT!r}) with it, not {content!r}",
+            rejected=None,
         )
     too_large = mask_refused(
         "payload_too_large",
         f"content mask {name}: larger than {MAX_MASK_BYTES} bytes (a mask is one grey channel of the frames' size: "
         "send it as PNG, lossless WebP or binary PGM)",
+        rejected="too_large",
     )
     if len(mask.data) > 4 * -(-MAX_MASK_BYTES // 3):  # decodes to more than MAX_MASK_BYTES: not even decoded
         raise too_large
@@ -246,6 +251,7 @@ def mask_over_cap(name: str, width: int, height: int, pixel_limit: int) -> Closi
         "frame_too_large",
         f"content mask {name}: it is {width}x{height} ({width * height} pixels), over this server's limit of "
         f"{pixel_limit} pixels a frame (COLONLIGHT_MAX_PIXELS)",
+        rejected="too_many_pixels",
     )
 
 
@@ -500,17 +506,19 @@ async def stream(ws: WebSocket) -> None:
                 "streams are turned off",
             )
         if not slots.take():
-            manager.metrics.inc("rejected", "streams_full")
             raise Closing(
                 CLOSE_BUSY,
                 "busy",
                 f"the server has {slots.limit} streams open, its limit (COLONLIGHT_STREAM_MAX); try again later",
                 f"busy: {slots.limit} streams open, try again later",
+                rejected="streams_full",
             )
         holding = True
         await session.run(first)
         close = (CLOSE_NORMAL, "end of stream")
     except Closing as exc:
+        if exc.rejected is not None:
+            manager.metrics.inc("rejected", exc.rejected)
         try:
             await session.send({"type": "error", "code": exc.code, "message": exc.message})
             close = (exc.close_code, exc.reason)

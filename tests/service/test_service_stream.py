@@ -300,35 +300,54 @@ def test_a_content_mask_in_the_start_message_is_used_as_the_engine_uses_it(
 
 
 def test_bad_content_masks_close_with_1008_in_one_line(server: ServiceServer) -> None:
-    """Each refused mask: one ``error`` line naming it by the client's name (never a server path), then 1008."""
+    """Each refused mask: one ``error`` line naming it by the client's name (never a server path), then 1008; it is
+    counted in ``colonlight_requests_rejected_total`` under the reason a job's upload of it is (none for a mask
+    beside another ``content``, a misused option, as for a job)."""
     grey = scope_mask()
     colour = np.repeat(grey[..., None], 3, axis=2)
     colour[..., 0] //= 2
-    cases: list[tuple[str, str, str]] = [
+    bad, too_many = "bad_content_mask", "too_many_pixels"
+    cases: list[tuple[str, str, str, str | None]] = [
         (
             mask_start("bm90IGEgbWFzaw=!", name="bad.png"),
             "invalid_content_mask",
             "bad.png: its data is not valid base64",
+            bad,
         ),
         (
             mask_start(jpeg(np.repeat(grey[..., None], 3, axis=2))),
             "invalid_content_mask",
             "a JPEG content mask is lossy",
+            bad,
         ),
-        (mask_start(png(colour)), "invalid_content_mask", "scope.png: a content mask is grey (0 border, 255 scene)"),
-        (mask_start(png(np.zeros((120, 160, 3), np.uint8))), "invalid_content_mask", "no scene pixel (255)"),
-        (mask_start(b""), "invalid_content_mask", "scope.png: empty file (0 bytes)"),
-        (mask_start(flat_png(8000, 8000, 255), name="huge.png"), "frame_too_large", "huge.png: it is 8000x8000"),
-        (mask_start(png(colour), content="full"), "validation_error", "leave `content` unset (or 'auto')"),
+        (
+            mask_start(png(colour)),
+            "invalid_content_mask",
+            "scope.png: a content mask is grey (0 border, 255 scene)",
+            bad,
+        ),
+        (mask_start(png(np.zeros((120, 160, 3), np.uint8))), "invalid_content_mask", "no scene pixel (255)", bad),
+        (mask_start(b""), "invalid_content_mask", "scope.png: empty file (0 bytes)", bad),
+        (
+            mask_start(flat_png(8000, 8000, 255), name="huge.png"),
+            "frame_too_large",
+            "huge.png: it is 8000x8000",
+            too_many,
+        ),
+        (mask_start(png(colour), content="full"), "validation_error", "leave `content` unset (or 'auto')", None),
     ]
-    for start, code, text in cases:
+    name = 'colonlight_requests_rejected_total{reason="%s"}'
+    for start, code, text, reason in cases:
+        before = {label: metric(server, name % label) for label in (bad, too_many)}
         with open_stream(server) as ws:
             ws.send(start)
-            close, reason, messages = closed_with(ws)
+            close, _, messages = closed_with(ws)
             message = messages[-1]["message"]
             assert (close, messages[-1]["code"]) == (1008, code), messages
             assert message.startswith("content mask ") and text in message, message
             assert "\n" not in message and str(server.data_dir) not in message and "/tmp" not in message, message
+        counted = {label: metric(server, name % label) - before[label] for label in (bad, too_many)}
+        assert counted == {label: float(label == reason) for label in (bad, too_many)}, (text, counted)
 
 
 def test_a_content_mask_over_the_upload_cap_is_refused_before_it_is_decoded() -> None:
@@ -342,7 +361,7 @@ def test_a_content_mask_over_the_upload_cap_is_refused_before_it_is_decoded() ->
     for data in (big, big + "AAAA" * 4):  # just over, decoded; and over before decoding
         with pytest.raises(Closing) as info:
             read_mask(StreamMask(name="big.pgm", data=data), "auto", 10**8)
-        assert (info.value.close_code, info.value.code) == (1008, "payload_too_large")
+        assert (info.value.close_code, info.value.code, info.value.rejected) == (1008, "payload_too_large", "too_large")
         assert info.value.message.startswith(f"content mask big.pgm: larger than {MAX_MASK_BYTES} bytes")
 
 
