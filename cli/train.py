@@ -171,6 +171,13 @@ def train_cmd(
         "their clean frames (steady lighting, where the right output is the input) against the others' 1. "
         "An experiment (README, session 30).",
     ),
+    darken_weight: float = typer.Option(
+        1.0,
+        "--darken-weight",
+        help="With --objective restore|relative|hybrid: a sample corrected darker than its clean target costs "
+        "this many times its error (above 1: where a scene's own brightening and the camera's look alike, lean "
+        "towards leaving it). An experiment (README, session 36).",
+    ),
     inputs: str | None = typer.Option(
         None,
         "--inputs",
@@ -263,6 +270,7 @@ def train_cmd(
             inputs=inputs or "rgb",
             frame_steps=frame_steps,
             steady_weight=steady_weight,
+            darken_weight=darken_weight,
         )
     from colonlight import TRAIN_LOCK, output_lock
 

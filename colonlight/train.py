@@ -70,6 +70,7 @@ class TrainConfig:
     inputs: str = "rgb"  # "rgb" (the paper's), "rgb-log", "rgb-prev", "delta" or "delta-rank" (colonlight.model)
     frame_steps: tuple[int, ...] = (1,)  # windows also of every k-th frame: motion and lighting k times as fast
     steady_weight: float = 1.0  # weight of windows whose recorded frames are their clean ones (supervised only)
+    darken_weight: float = 1.0  # weight of restoration errors where the output is darker than its target
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
@@ -94,6 +95,10 @@ class TrainConfig:
             raise OptionError(f"steady weight must be a finite number above 0, got {self.steady_weight!r}")
         if self.steady_weight != 1.0 and not self.supervised:
             raise OptionError("steady weight needs a supervised objective (it needs the clean frames to tell)")
+        if not (math.isfinite(self.darken_weight) and self.darken_weight > 0):
+            raise OptionError(f"darken weight must be a finite number above 0, got {self.darken_weight!r}")
+        if self.darken_weight != 1.0 and not self.supervised:
+            raise OptionError("darken weight needs a supervised objective (it needs the clean frames to tell)")
         if self.exposure_jitter and self.objective != "relative":
             raise OptionError("exposure jitter needs --objective relative (its targets change with the input)")
 
@@ -362,17 +367,24 @@ def restore_loss(
     head: str,
     corrected: torch.Tensor | None = None,
     weights: torch.Tensor | None = None,
+    darken_weight: float = 1.0,
 ) -> torch.Tensor:
     """Mean absolute difference between the corrected frames and the clean ones, over the samples the recorder
     did not clip. Every frame is a target: a model trained this way corrects from the first frame on (no seed
     frames). ``corrected``: ``apply_head(frames, out, head)`` when the caller already has it; ``weights``:
-    ``(B,)``, each window's samples count that many times in the mean."""
+    ``(B,)``, each window's samples count that many times in the mean; ``darken_weight``: a sample corrected
+    darker than its target costs that many times its error (above 1, where the model cannot tell a scene's own
+    brightening from the camera's it leans towards leaving it: the median becomes a higher quantile)."""
     if corrected is None:
         corrected = apply_head(frames, out, head)
     keep = unclipped(frames)
     if weights is not None:
         keep = keep * weights.to(keep)[:, None, None, None, None]
-    return ((corrected - clean).abs() * keep).sum() / keep.sum().clamp_min(1.0)
+    error = corrected - clean
+    cost = error.abs()
+    if darken_weight != 1.0:
+        cost = torch.where(error < 0, cost * darken_weight, cost)
+    return (cost * keep).sum() / keep.sum().clamp_min(1.0)
 
 
 def temporal_restore_loss(
@@ -482,7 +494,7 @@ def batch_loss(
         return paper_loss_any_head(x, out, cfg.head, cfg.ssim_window, anchor)
     corrected = apply_head(x, out, cfg.head)  # once for both terms
     weights = data.window_weights(ids, cfg.steady_weight)
-    loss = restore_loss(x, clean, out, cfg.head, corrected, weights)
+    loss = restore_loss(x, clean, out, cfg.head, corrected, weights, cfg.darken_weight)
     if cfg.temporal:
         loss = loss + cfg.temporal * temporal_restore_loss(x, clean, out, cfg.head, corrected, weights)
     if cfg.objective == "hybrid":
@@ -668,6 +680,8 @@ def objective_text(cfg: TrainConfig) -> str:
             f"; windows whose recorded frames are exactly their clean frames (steady lighting) weigh "
             f"{cfg.steady_weight:g} x in both terms"
         )
+    if cfg.darken_weight != 1.0:
+        restore += f"; in the first term a sample corrected darker than its target costs {cfg.darken_weight:g} x"
     if cfg.objective == "paper":
         return paper
     if cfg.objective == "restore":

@@ -178,3 +178,23 @@ def test_the_steady_weight_is_checked_and_recorded_in_the_objective() -> None:
         TrainConfig(objective="paper", steady_weight=2.0)
     assert "weigh 4 x" in objective_text(TrainConfig(objective="relative", steady_weight=4.0))
     assert "weigh" not in objective_text(TrainConfig(objective="relative"))
+
+
+def test_the_darken_weight_costs_only_samples_corrected_darker_than_their_target() -> None:
+    """Errors of -0.1 and +0.3 against the target: a darken weight of 3 triples the first alone ((0.3 + 0.3) / 2),
+    the steady weight still weighs whole windows; the option is checked and recorded in the objective."""
+    frames = torch.full((2, 1, 1, 1, 1), 0.5)
+    target = torch.full((2, 1, 1, 1, 1), 0.5)
+    corrected = torch.tensor([0.4, 0.8]).view(2, 1, 1, 1, 1)
+    out = torch.zeros(2, 1, 8)
+    assert float(restore_loss(frames, target, out, "curve", corrected)) == pytest.approx(0.2)
+    assert float(restore_loss(frames, target, out, "curve", corrected, None, 3.0)) == pytest.approx(0.3)
+    weights = torch.tensor([1.0, 3.0])
+    assert float(restore_loss(frames, target, out, "curve", corrected, weights, 3.0)) == pytest.approx(1.2 / 4)
+    for bad in (0.0, -1.0, math.nan, math.inf):
+        with pytest.raises(OptionError, match="darken weight"):
+            TrainConfig(objective="relative", darken_weight=bad)
+    with pytest.raises(OptionError, match="supervised"):
+        TrainConfig(objective="paper", darken_weight=2.0)
+    assert "darker than its target costs 4 x" in objective_text(TrainConfig(objective="relative", darken_weight=4.0))
+    assert "darker" not in objective_text(TrainConfig(objective="relative"))
