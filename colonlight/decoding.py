@@ -117,6 +117,15 @@ class DecodeReport:
     damaged: int = 0  # packets flagged corrupt and frames decoded with errors concealed
     discontinuities: int = 0  # timestamp jumps corrected as ffmpeg corrects them (joined MPEG-TS, restarts)
     truncated: str | None = None
+    decoder_error: str | None = None  # why the decoder refused the first packet it refused
+
+    @property
+    def nothing_decoded(self) -> str:
+        """The cause said for a clip none of whose frames decode: the decoder's own reason when it refused every
+        packet (a valid stream this FFmpeg build cannot decode is not "truncated or corrupt"), else the guess."""
+        if self.packets and self.decoder_error:
+            return f"no decodable video frames: the decoder refused all {self.packets} packets ({self.decoder_error})"
+        return "no decodable video frames (truncated or corrupt?)"
 
     @property
     def cut_note(self) -> str:
@@ -350,11 +359,23 @@ def _frames(
             _check_size(path, stream, cap)
             log.debug("%s: packet %d not decoded: %s", path, report.packets, exc)
             report.damaged += 1
+            if report.decoder_error is None:
+                report.decoder_error = _decoder_cause(exc, stream)
             continue
         for frame in frames:
             report.source_frames += 1
             report.damaged += bool(frame.is_corrupt)
             yield frame
+
+
+def _decoder_cause(exc: BaseException, stream: Any) -> str:
+    """Why a packet did not decode, in words: a decoder that would not even open for the stream (libavcodec
+    refuses some valid streams, a 17x9 Theora clip) is said as that, not as PyAV's errno text ("Operation not
+    permitted" reads as a file permission problem)."""
+    codec = getattr(stream.codec_context, "name", None) or "video"
+    if "avcodec_open2" in str(exc):
+        return f"FFmpeg's {codec} decoder cannot be opened for this {stream.width}x{stream.height} stream"
+    return f"{codec}: {_cause(exc)}"
 
 
 def _drained(path: Path, stream: Any, report: DecodeReport) -> Iterator[Any]:
@@ -390,9 +411,10 @@ def probe_video(path: Path, max_pixels: int | None = None) -> VideoInfo:
     cap = max_pixels_setting() if max_pixels is None else int(max_pixels)
     container, stream = _open(path, cap)
     with container:
-        first = next(iter(_frames(path, container, stream, None, DecodeReport(), cap)), None)
+        report = DecodeReport()
+        first = next(iter(_frames(path, container, stream, None, report, cap)), None)
         if first is None:
-            raise _index_cut_error(path) or _error(path, "no decodable video frames (truncated or corrupt?)")
+            raise _index_cut_error(path) or _error(path, report.nothing_decoded)
         rotation, _ = orientation(display_matrix(first), rotation_tag(stream))
         width, height = (first.height, first.width) if rotation % 180 == 90 else (first.width, first.height)
         rate = stream.average_rate or stream.guessed_rate
@@ -552,7 +574,7 @@ def _decode(
             for k in [k for k in held if k not in keep]:
                 del held[k]
     if decoded == 0:
-        raise _index_cut_error(path) or _error(path, "no decodable video frames (truncated or corrupt?)")
+        raise _index_cut_error(path) or _error(path, report.nothing_decoded)
     if decoded < min_frames:
         # the container's sizes are read now, not after the last frame: a clip cut short fails here, and said
         # alone "too short" sends the user to a recording that was long enough rather than to the cut copy

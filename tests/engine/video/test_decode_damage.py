@@ -15,6 +15,7 @@ import pytest
 from colonlight_cli.main import app
 from typer.testing import CliRunner
 
+from colonlight.errors import InputError
 from colonlight.video import DecodeReport, iter_video_frames
 
 from ...media import X264, corrupted_copy, ffmpeg_exe, ffmpeg_frames, make_clip, needs_ffmpeg, read_index
@@ -85,3 +86,28 @@ def test_cli_keeps_a_damaged_clip_with_a_warning(sources: dict[str, Path], tmp_p
     assert "truncated" not in gammas and any("damaged" in w for w in gammas["warnings"])
     entry = json.loads((out / "manifest.json").read_text())["clips"][0]
     assert entry["status"] == "done" and entry["frames"] == gammas["frame_count"]
+
+
+@needs_ffmpeg
+def test_a_stream_the_decoder_refuses_is_said_for_what_it_is(tmp_path: Path) -> None:
+    """A valid clip whose every packet the decoder refuses (libavcodec will not open Theora at 17x9) fails in one
+    line with the decoder's own reason, not as "truncated or corrupt?", which sent the user looking for damage;
+    the batch goes on with the next clip."""
+    videos = tmp_path / "videos"
+    odd = make_clip(videos / "odd.ogv", 20, 25, size=(17, 9), codec_args=("-c:v", "libtheora"))
+    make_clip(videos / "fine.mkv", 20, 25)
+    try:
+        decoded = len(list(iter_video_frames(odd, 18)))
+    except InputError as exc:
+        message = str(exc)
+    else:
+        pytest.skip(f"this build's FFmpeg decodes 17x9 Theora ({decoded} frames): no refused stream to test")
+    assert message.startswith(str(odd)) and "\n" not in message, message
+    assert "the decoder refused all" in message and "theora decoder cannot be opened for this 17x9" in message
+    assert "corrupt" not in message, message
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["enhance", str(videos), "-o", str(out), "--method", "none", "-q"])
+    assert result.exit_code == 1 and "Traceback" not in result.output, result.output
+    failed = [line for line in result.output.splitlines() if "odd.ogv" in line]
+    assert len(failed) == 1 and "theora decoder cannot be opened" in failed[0], result.output
+    assert (out / "fine" / "gammas.json").is_file()
