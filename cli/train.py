@@ -178,6 +178,13 @@ def train_cmd(
         "this many times its error (above 1: where a scene's own brightening and the camera's look alike, lean "
         "towards leaving it). An experiment (README, session 36).",
     ),
+    darken_level: float = typer.Option(
+        0.0,
+        "--darken-level",
+        help="With --objective restore|relative|hybrid: add this many times the mean amount by which a frame's "
+        "mean level falls below its target's (the level alone leans towards leaving a brightening; the tones "
+        "stay a symmetric fit). An experiment (README, session 36).",
+    ),
     inputs: str | None = typer.Option(
         None,
         "--inputs",
@@ -271,6 +278,7 @@ def train_cmd(
             frame_steps=frame_steps,
             steady_weight=steady_weight,
             darken_weight=darken_weight,
+            darken_level=darken_level,
         )
     from colonlight import TRAIN_LOCK, output_lock
 

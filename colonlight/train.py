@@ -71,6 +71,7 @@ class TrainConfig:
     frame_steps: tuple[int, ...] = (1,)  # windows also of every k-th frame: motion and lighting k times as fast
     steady_weight: float = 1.0  # weight of windows whose recorded frames are their clean ones (supervised only)
     darken_weight: float = 1.0  # weight of restoration errors where the output is darker than its target
+    darken_level: float = 0.0  # weight of a frame's mean output level below its target's (supervised only)
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
@@ -99,6 +100,10 @@ class TrainConfig:
             raise OptionError(f"darken weight must be a finite number above 0, got {self.darken_weight!r}")
         if self.darken_weight != 1.0 and not self.supervised:
             raise OptionError("darken weight needs a supervised objective (it needs the clean frames to tell)")
+        if not (math.isfinite(self.darken_level) and self.darken_level >= 0):
+            raise OptionError(f"darken level must be a finite number >= 0, got {self.darken_level!r}")
+        if self.darken_level and not self.supervised:
+            raise OptionError("darken level needs a supervised objective (it needs the clean frames to tell)")
         if self.exposure_jitter and self.objective != "relative":
             raise OptionError("exposure jitter needs --objective relative (its targets change with the input)")
 
@@ -418,6 +423,26 @@ def temporal_restore_loss(
     return (change * w).sum() / w.sum()
 
 
+def darken_level_loss(
+    frames: torch.Tensor,
+    clean: torch.Tensor,
+    corrected: torch.Tensor,
+    weights: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """Mean over frames of how far the frame's mean level falls below its target's (0 where it does not), over
+    the samples the recorder did not clip. Unlike ``darken_weight`` it leaves the per-sample term symmetric: only
+    the level is pushed up where the model is unsure, not every tone. ``weights``: ``(B,)``, as for
+    ``restore_loss``."""
+    keep = unclipped(frames)
+    dims = (2, 3, 4)
+    error = ((corrected - clean) * keep).sum(dim=dims) / keep.sum(dim=dims).clamp_min(1.0)
+    below = torch.relu(-error).mean(dim=1)
+    if weights is None:
+        return below.mean()
+    w = weights.to(below)
+    return (below * w).sum() / w.sum()
+
+
 def paper_loss_any_head(frames: torch.Tensor, out: torch.Tensor, head: str, window: int, anchor: float) -> torch.Tensor:
     """The paper's loss for either head (``sequence_loss`` takes ``a``; the gain-gamma head's frames are
     corrected first and compared the same way)."""
@@ -497,6 +522,8 @@ def batch_loss(
     loss = restore_loss(x, clean, out, cfg.head, corrected, weights, cfg.darken_weight)
     if cfg.temporal:
         loss = loss + cfg.temporal * temporal_restore_loss(x, clean, out, cfg.head, corrected, weights)
+    if cfg.darken_level:
+        loss = loss + cfg.darken_level * darken_level_loss(x, clean, corrected, weights)
     if cfg.objective == "hybrid":
         loss = loss + cfg.consistency * paper_loss_any_head(x, out, cfg.head, cfg.ssim_window, anchor)
     return loss
@@ -682,6 +709,8 @@ def objective_text(cfg: TrainConfig) -> str:
         )
     if cfg.darken_weight != 1.0:
         restore += f"; in the first term a sample corrected darker than its target costs {cfg.darken_weight:g} x"
+    if cfg.darken_level:
+        restore += f"; plus {cfg.darken_level:g} x mean over frames of how far the mean level falls below the target's"
     if cfg.objective == "paper":
         return paper
     if cfg.objective == "restore":

@@ -189,7 +189,7 @@ def test_train_on_synthetic_folders_reads_their_lossless_frames_beside_clean(tmp
     assert card["head"] == "gain-gamma" and card["training"]["objective"].startswith("mean |corrected - clean|")
 
 
-def test_steady_and_darken_weights_from_the_command_line_are_trained_with_and_recorded(tmp_path: Path) -> None:
+def test_steady_and_darken_options_from_the_command_line_are_trained_with_and_recorded(tmp_path: Path) -> None:
     """Two steady synthetic clips (recorded frames are their clean ones; one trains, one validates): every
     window is undisturbed, so the weight applies to all of them; the card records it; a weight of 0, or one with
     the unsupervised objective (which has no clean frames to tell steady windows by), is a usage error before
@@ -205,18 +205,21 @@ def test_steady_and_darken_weights_from_the_command_line_are_trained_with_and_re
     assert made.exit_code == 0, made.output
     common = ["--epochs", "1", "--size", "16", "--seq-len", "4", "--stride", "4", "--batch", "2", "--head", "curve"]
     run = tmp_path / "run"
-    options = ["--objective", "relative", "--steady-weight", "3", "--darken-weight", "2"]
+    options = ["--objective", "relative", "--steady-weight", "3", "--darken-weight", "2", "--darken-level", "5"]
     res = runner.invoke(app, ["train", str(clips), "-o", str(run), *common, *options])
     assert res.exit_code == 0, res.output
     training = json.loads((run / "colonlight-rnn.json").read_text())["training"]
     assert training["steady_weight"] == 3.0 and "weigh 3 x" in training["objective"], training
     assert training["darken_weight"] == 2.0 and "darker than its target costs 2 x" in training["objective"], training
+    assert training["darken_level"] == 5.0 and "plus 5 x mean over frames" in training["objective"], training
     assert training["train_undisturbed_sequences"] == training["train_sequences"] == 2, training  # one clip validates
     for extra, named in (
         (["--objective", "relative", "--steady-weight", "0"], "steady weight"),
         (["--steady-weight", "2"], "steady weight"),
         (["--objective", "relative", "--darken-weight", "-1"], "darken weight"),
         (["--darken-weight", "2"], "darken weight"),
+        (["--objective", "relative", "--darken-level", "-1"], "darken level"),
+        (["--darken-level", "2"], "darken level"),
     ):
         res = runner.invoke(app, ["train", str(clips), "-o", str(tmp_path / "x"), *common, *extra])
         assert res.exit_code == 2 and named in res.output, res.output

@@ -18,6 +18,7 @@ from colonlight.train import (
     SequenceSet,
     TrainConfig,
     batch_loss,
+    darken_level_loss,
     exposure_changes,
     objective_text,
     parse_frame_steps,
@@ -198,3 +199,30 @@ def test_the_darken_weight_costs_only_samples_corrected_darker_than_their_target
         TrainConfig(objective="paper", darken_weight=2.0)
     assert "darker than its target costs 4 x" in objective_text(TrainConfig(objective="relative", darken_weight=4.0))
     assert "darker" not in objective_text(TrainConfig(objective="relative"))
+
+
+def test_the_darken_level_costs_only_frames_whose_mean_falls_below_the_target() -> None:
+    """Two frames whose samples err by (-0.2, +0.1) and (+0.1, +0.1): only the first frame's mean (-0.05) is below
+    its target's, so the term is 0.05 / 2 over the window; a window weight weighs whole windows; clipped input
+    samples are left out; the option is checked and recorded in the objective."""
+    frames = torch.full((1, 2, 1, 1, 2), 0.5)
+    target = torch.full((1, 2, 1, 1, 2), 0.5)
+    corrected = target + torch.tensor([[-0.2, 0.1], [0.1, 0.1]]).view(1, 2, 1, 1, 2)
+    assert float(darken_level_loss(frames, target, corrected)) == pytest.approx(0.025)
+    two = torch.cat([corrected, target + 0.1])  # a second window, never below its target
+    assert float(
+        darken_level_loss(
+            frames.expand(2, -1, -1, -1, -1), target.expand(2, -1, -1, -1, -1), two, torch.tensor([3.0, 1.0])
+        )
+    ) == pytest.approx(0.075 / 4)
+    clipped = frames.clone()
+    clipped[0, 0, 0, 0, 1] = 1.0  # the +0.1 sample of the first frame was clipped: its mean error is -0.2
+    assert float(darken_level_loss(clipped, target, corrected)) == pytest.approx(0.1)
+    for bad in (-1.0, math.nan, math.inf):
+        with pytest.raises(OptionError, match="darken level"):
+            TrainConfig(objective="relative", darken_level=bad)
+    with pytest.raises(OptionError, match="supervised"):
+        TrainConfig(objective="paper", darken_level=2.0)
+    assert "plus 5 x mean over frames of how far the mean level falls" in objective_text(
+        TrainConfig(objective="relative", darken_level=5.0)
+    )
