@@ -47,6 +47,16 @@ SATURATED = 0.98
 OBJECTIVES = ("paper", "restore", "relative", "hybrid")
 
 
+def _check_supervised_weight(name: str, value: float, neutral: float, supervised: bool) -> None:
+    """One of the supervised objective's extra weights: a multiplier (``neutral`` 1) must be above 0, an added
+    term's weight (``neutral`` 0) at least 0, both finite; other than neutral only with the clean frames it needs."""
+    multiplier = neutral == 1.0
+    if not (math.isfinite(value) and (value > 0 if multiplier else value >= 0)):
+        raise OptionError(f"{name} must be a finite number {'above 0' if multiplier else '>= 0'}, got {value!r}")
+    if value != neutral and not supervised:
+        raise OptionError(f"{name} needs a supervised objective (it needs the clean frames to tell)")
+
+
 @dataclass
 class TrainConfig:
     """Everything that determines a training run (recorded in the model card)."""
@@ -92,18 +102,12 @@ class TrainConfig:
         if not steps or any(isinstance(k, bool) or not isinstance(k, int) or k < 1 for k in steps):
             raise OptionError(f"frame steps must be whole numbers >= 1, got {steps!r}")
         self.frame_steps = tuple(sorted(set(steps)))
-        if not (math.isfinite(self.steady_weight) and self.steady_weight > 0):
-            raise OptionError(f"steady weight must be a finite number above 0, got {self.steady_weight!r}")
-        if self.steady_weight != 1.0 and not self.supervised:
-            raise OptionError("steady weight needs a supervised objective (it needs the clean frames to tell)")
-        if not (math.isfinite(self.darken_weight) and self.darken_weight > 0):
-            raise OptionError(f"darken weight must be a finite number above 0, got {self.darken_weight!r}")
-        if self.darken_weight != 1.0 and not self.supervised:
-            raise OptionError("darken weight needs a supervised objective (it needs the clean frames to tell)")
-        if not (math.isfinite(self.darken_level) and self.darken_level >= 0):
-            raise OptionError(f"darken level must be a finite number >= 0, got {self.darken_level!r}")
-        if self.darken_level and not self.supervised:
-            raise OptionError("darken level needs a supervised objective (it needs the clean frames to tell)")
+        for name, value, neutral in (
+            ("steady weight", self.steady_weight, 1.0),
+            ("darken weight", self.darken_weight, 1.0),
+            ("darken level", self.darken_level, 0.0),
+        ):
+            _check_supervised_weight(name, value, neutral, self.supervised)
         if self.exposure_jitter and self.objective != "relative":
             raise OptionError("exposure jitter needs --objective relative (its targets change with the input)")
 
