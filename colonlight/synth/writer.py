@@ -171,6 +171,29 @@ def write_clip(
     (out_dir / SYNTH_MARKER).unlink(missing_ok=True)
     # what a run killed mid-clip left (clip.mp4's temporary lives as long as the render): nothing renames it now
     remove_stale_temporaries(out_dir)
+    try:
+        _render_clip(out_dir, cfg, seed, video=video, frames=frames, clean=clean, depth=depth, crf=crf, overlay=overlay)
+    except BaseException:
+        # an interrupt (SIGTERM's exception) can land inside mkstemp, after a frame's temporary exists and before
+        # the block that would delete it: the clip's folder is this run's alone, so every temporary in it goes
+        remove_stale_temporaries(out_dir)
+        raise
+    return out_dir
+
+
+def _render_clip(
+    out_dir: Path,
+    cfg: SynthConfig,
+    seed: int,
+    *,
+    video: bool,
+    frames: bool,
+    clean: bool,
+    depth: bool,
+    crf: int,
+    overlay: OverlaySpec | None,
+) -> None:
+    """:func:`write_clip`'s rendering and writing, into a folder it has prepared."""
     scene = build_scene(cfg, seed)
     poses: list[str] = []
     per_frame: list[dict[str, Any]] = []
@@ -220,7 +243,6 @@ def write_clip(
         out_dir, cfg.n_frames, video=video, frames=frames, clean=clean, depth=depth, content=overlay is not None
     )
     write_json_atomic(out_dir / SYNTH_MARKER, manifest)
-    return out_dir
 
 
 def _manifest(cfg: SynthConfig, seed: int, **written: bool) -> dict[str, Any]:

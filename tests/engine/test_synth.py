@@ -412,3 +412,28 @@ def test_exposure_goes_in_before_the_shoulder() -> None:
     want = response(y * np.float32(2.0 ** (1 / 2.2)), 0.8)
     assert np.allclose(sched.apply(0, y, 0.8), want)
     assert np.allclose(sched.apply(0, y, 0.0), y * np.float32(2.0 ** (1 / 2.2)))
+
+
+def test_an_interrupt_inside_mkstemp_leaves_no_temporary(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """SIGTERM's exception can land inside ``tempfile.mkstemp`` after it made the file and before any block that
+    would delete it (CI caught one such PNG temporary). Injected there on the third temporary of a real render:
+    the interrupt propagates, the clip's folder keeps no temporary and no completion marker."""
+    import tempfile
+
+    real = tempfile.mkstemp
+    made: list[str] = []
+
+    def interrupted_after_creating(*args: object, **kwargs: object) -> tuple[int, str]:
+        fd, name = real(*args, **kwargs)  # type: ignore[call-overload]
+        made.append(name)
+        if len(made) == 3:
+            raise KeyboardInterrupt  # what the CLI's SIGTERM handler raises, at a bytecode boundary
+        return fd, name
+
+    monkeypatch.setattr(tempfile, "mkstemp", interrupted_after_creating)
+    out = tmp_path / "clip"
+    with pytest.raises(KeyboardInterrupt):
+        write_clip(out, _cfg(3, n_frames=4), 3, video=False)
+    assert len(made) == 3 and not Path(made[2]).exists()
+    assert not [p for p in out.rglob("*") if "colonlight-tmp" in p.name], sorted(out.rglob("*"))
+    assert not (out / "synth.json").exists()
