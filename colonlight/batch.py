@@ -46,7 +46,7 @@ from .methods import Method
 from .outdir import output_lock
 from .pipeline import GAMMAS_FILE, ClipOptions, remove_unfinished_video
 from .tuning import network_threads, tune_for_clips
-from .worker_process import die_with_parent
+from .worker_process import die_with_parent, stop_workers
 
 #: How names that are not valid UTF-8 appear in the manifest (and in every gammas.json): see atomic.json_bytes.
 PATH_ENCODING = "utf-8, surrogateescape (a byte 0xNN that is not UTF-8 is written as \\udcNN; os.fsencode restores it)"
@@ -366,11 +366,7 @@ def _pool_round(
                 time.sleep(0.05)
         drain()
     except BaseException:
-        workers_now = [p for p in mp.active_children() if p not in before]  # the pool's: they stop now, mid-clip
-        for proc in workers_now:
-            proc.kill()
-        for proc in workers_now:
-            proc.join(timeout=10)
+        stop_workers(p for p in mp.active_children() if p not in before)  # the pool's: they stop now, mid-clip
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
         _remove_temporaries_of([j for j in jobs if j.name not in finished_jobs])

@@ -13,10 +13,7 @@ A synthetic clip folder (``colonlight synth`` / :func:`colonlight.synth.write_cl
 from __future__ import annotations
 
 import json
-import multiprocessing
-import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -24,7 +21,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..atomic import read_json
+from ..atomic import read_json, remove_stale_temporaries
 from ..discovery import (
     SYNTH_FRAMES,
     SYNTH_MARKER,
@@ -40,7 +37,7 @@ from ..sources import clip_frames
 from ..synth import SynthConfig, decode_depth, write_clip
 from ..synth.config import Split
 from ..synth.writer import read_tum
-from ..worker_process import die_with_parent
+from ..worker_process import map_in_workers
 from .consistency import MIN_FLOW_SIDE
 
 DEFAULT_MAX_SIZE = 256
@@ -421,13 +418,14 @@ def make_benchmark(
             if on_clip:
                 on_clip(job[0], True)
     else:
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(
-            max_workers=workers, mp_context=ctx, initializer=die_with_parent, initargs=(os.getpid(),)
-        ) as pool:
-            for folder in pool.map(_render_job, jobs):
-                if on_clip:
-                    on_clip(folder, True)
+
+        def sweep() -> None:  # the clip folders are this run's: what a killed worker was writing goes
+            for job in jobs:
+                remove_stale_temporaries(job[0])
+
+        for folder in map_in_workers(_render_job, jobs, workers=workers, on_stop=sweep):
+            if on_clip:
+                on_clip(folder, True)
     return refs
 
 

@@ -19,9 +19,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import multiprocessing
-import os
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +30,7 @@ from ..discovery import SYNTH_FRAMES, SYNTH_MARKER, SYNTH_VIDEO
 from ..errors import InputError
 from ..limits import DEFAULT_FPS
 from ..video import VideoWriter
-from ..worker_process import die_with_parent
+from ..worker_process import die_with_parent, map_in_workers
 from .clip import SynthFrame, build_scene, render_frame
 from .config import Split, SynthConfig
 from .overlay import OverlaySpec, drawn_overlay
@@ -374,8 +371,9 @@ def make_dataset(
         jobs.append((out_dir / f"clip_{i:05d}", cfg.to_dict(), s, flags))
     if workers <= 1 or len(jobs) <= 1:
         return [_dataset_job(j) for j in jobs]
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(
-        max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(os.getpid(),)
-    ) as pool:
-        return list(pool.map(_dataset_job, jobs))
+
+    def sweep() -> None:  # the clip folders are this run's: what a killed worker was writing goes
+        for job in jobs:
+            remove_stale_temporaries(job[0])
+
+    return list(map_in_workers(_dataset_job, jobs, workers=workers, initializer=_init_worker, on_stop=sweep))

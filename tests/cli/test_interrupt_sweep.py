@@ -108,6 +108,23 @@ def test_synth_stopped_mid_clip_then_rerun(tmp_path: Path, synth_clean: dict[str
     assert mine.read_text() == "the user's own\n"
 
 
+def test_synth_workers_stopped_mid_clip_stop_at_once(tmp_path: Path) -> None:
+    """``synth -j 2`` stopped by SIGTERM while both workers render: they used to finish the clips they held (the
+    parent waited for them, up to a whole clip's render, past ``docker stop``'s grace) and any temporary of a
+    worker killed later stayed. Now the workers are killed mid-clip, no clip is marked complete, nothing
+    half-written stays, and the rerun renders both."""
+    out = tmp_path / "out"
+    args = ("-n", "2", "--frames", "120", "--width", "64", "--height", "48", "-j", "2")
+    code, err = interrupt_when(colonlight("synth", out, *args), lambda: bool(temporaries(out)), signal.SIGTERM)
+    assert code == 143, err
+    assert [line for line in err.splitlines() if line.strip()] == [INTERRUPTED]
+    assert not temporaries(out)
+    assert not list(out.glob("clip_*/synth.json"))  # neither clip was left to finish
+    run("synth", out, *args)
+    assert not temporaries(out)
+    assert len(list(out.glob("clip_*/synth.json"))) == 2
+
+
 @pytest.fixture(scope="module")
 def train_data(tmp_path_factory: pytest.TempPathFactory) -> Path:
     data = tmp_path_factory.mktemp("train-data")

@@ -36,6 +36,7 @@ from colonlight.methods import available_methods
 from colonlight.metrics import content_masks
 
 from ...conftest import AUTHORS_CKPT
+from ...outputs import tree_bytes
 
 # ------------------------------------------------------------------------------------ a scene we know exactly
 
@@ -273,6 +274,13 @@ def test_benchmark_plan_and_reuse(tmp_path: Path) -> None:
     assert seen == [("clip_00000", True), ("clip_00001", True), ("clip_00000", False), ("clip_00001", False)]
     meta = json.loads((tmp_path / "clip_00001" / "synth.json").read_text())
     assert meta["seed"] == 800_001 and meta["config"]["undisturbed_seeds"] is True
+    # two render workers give the same clips, in the same order
+    seen.clear()
+    make_benchmark(
+        tmp_path / "pool", 2, frames=3, size=32, workers=2, on_clip=lambda p, new: seen.append((p.name, new))
+    )
+    assert seen == [("clip_00000", True), ("clip_00001", True)]
+    assert tree_bytes(tmp_path / "pool") == {k: v for k, v in tree_bytes(tmp_path).items() if not k.startswith("pool/")}
 
 
 # ------------------------------------------------------------------------------------------ ATE and COLMAP
