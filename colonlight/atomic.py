@@ -12,8 +12,8 @@ import fcntl
 import glob
 import json
 import os
+import secrets
 import stat
-import tempfile
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -22,24 +22,39 @@ from typing import Any
 from .errors import os_error_cause
 
 TMP_MARK = ".colonlight-tmp"
+_NAME_TRIES = 100
 _UMASK = os.umask(0)
 os.umask(_UMASK)
+
+
+def _temporary_name(dest: Path, suffix: str | None) -> Path:
+    """A fresh temporary's name beside ``dest``: hidden, ``TMP_MARK``, ``dest``'s suffix unless one is given."""
+    token = secrets.token_hex(6)
+    return dest.parent / f".{dest.name}.{token}{TMP_MARK}{dest.suffix if suffix is None else suffix}"
 
 
 def new_temporary(dest: Path, suffix: str | None = None) -> Path:
     """Create an empty temporary file beside ``dest``, named as a temporary (hidden, ``TMP_MARK``), and return it.
 
     ``suffix`` (default: that of ``dest``) is kept so that writers choosing a format by extension still work.
-    Move it into place with :func:`publish` (or delete it).
+    Move it into place with :func:`publish` (or delete it). Created with the usual permissions (0666 less the
+    umask), as any output. Not through ``tempfile.mkstemp``: an interrupt (Ctrl-C's or SIGTERM's exception) that
+    lands inside it once the file exists leaves a temporary no caller knows the name of; here the name is known
+    before the file exists, and an interrupt from then on deletes it.
     """
     dest = Path(dest)
     dest.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(
-        prefix=f".{dest.name}.", suffix=TMP_MARK + (dest.suffix if suffix is None else suffix), dir=dest.parent
-    )
-    os.close(fd)
-    os.chmod(tmp_name, 0o666 & ~_UMASK)  # mkstemp makes 0600 files; outputs get the usual permissions
-    return Path(tmp_name)
+    for _ in range(_NAME_TRIES):
+        tmp = _temporary_name(dest, suffix)
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666))
+        except FileExistsError:  # another writer's (48 random bits: next to never)
+            continue
+        except BaseException:
+            tmp.unlink(missing_ok=True)  # an interrupt once the file existed: it is ours
+            raise
+        return tmp
+    raise FileExistsError(errno.EEXIST, f"no free temporary name after {_NAME_TRIES} tries", str(dest.parent))
 
 
 def publish(tmp: Path, dest: Path) -> None:
@@ -57,14 +72,16 @@ def atomic_path(dest: Path, suffix: str | None = None) -> Iterator[Path]:
 
     ``suffix`` (default: that of ``dest``) is kept so that writers choosing a format by extension still work.
     """
-    tmp = new_temporary(dest, suffix)
+    tmp: Path | None = None
     try:
+        tmp = new_temporary(dest, suffix)  # inside the try: an interrupt as it returns still deletes it
         yield tmp
         # again: a writer that replaces the file rather than writing into it (safetensors' save_file does)
         # leaves its own private mode, and a trained model's weights would be unreadable to the rest of a lab
         os.chmod(tmp, 0o666 & ~_UMASK)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
         raise
     publish(tmp, Path(dest))
 
@@ -75,14 +92,16 @@ def write_temporary(dest: Path, data: bytes) -> Path:
     The first half of an atomic write: :func:`publish` is the second. Split so that many temporaries can be
     written in parallel and published in a chosen order (the frame writers of ``colonlight.pipeline``).
     """
-    tmp = new_temporary(dest)
+    tmp: Path | None = None
     try:
+        tmp = new_temporary(dest)
         with open(tmp, "wb") as fh:
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
         raise
     return tmp
 

@@ -24,6 +24,8 @@ from colonlight.synth import (
 )
 from colonlight.synth.writer import read_tum, rotation_to_quaternion, tum_line
 
+from ..faults import interrupt_after_creating
+
 W = 64
 
 
@@ -414,23 +416,13 @@ def test_exposure_goes_in_before_the_shoulder() -> None:
     assert np.allclose(sched.apply(0, y, 0.0), y * np.float32(2.0 ** (1 / 2.2)))
 
 
-def test_an_interrupt_inside_mkstemp_leaves_no_temporary(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """SIGTERM's exception can land inside ``tempfile.mkstemp`` after it made the file and before any block that
-    would delete it (CI caught one such PNG temporary). Injected there on the third temporary of a real render:
-    the interrupt propagates, the clip's folder keeps no temporary and no completion marker."""
-    import tempfile
-
-    real = tempfile.mkstemp
-    made: list[str] = []
-
-    def interrupted_after_creating(*args: object, **kwargs: object) -> tuple[int, str]:
-        fd, name = real(*args, **kwargs)  # type: ignore[call-overload]
-        made.append(name)
-        if len(made) == 3:
-            raise KeyboardInterrupt  # what the CLI's SIGTERM handler raises, at a bytecode boundary
-        return fd, name
-
-    monkeypatch.setattr(tempfile, "mkstemp", interrupted_after_creating)
+def test_an_interrupt_as_a_temporary_is_made_leaves_no_temporary(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """SIGTERM's exception can land just after a temporary's file is made (CI caught one such PNG temporary,
+    when ``tempfile.mkstemp`` made them). Injected there on the third temporary of a real render: the interrupt
+    propagates, the clip's folder keeps no temporary and no completion marker."""
+    made = interrupt_after_creating(monkeypatch, 3)
     out = tmp_path / "clip"
     with pytest.raises(KeyboardInterrupt):
         write_clip(out, _cfg(3, n_frames=4), 3, video=False)
