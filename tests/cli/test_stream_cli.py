@@ -544,6 +544,25 @@ def test_absent_device_and_refused_connection_are_one_line_errors(tmp_path: Path
     assert (b"no capture devices" in listed.stderr) == (not devices)
 
 
+def test_a_stream_that_never_gave_a_frame_is_a_one_line_failure(tmp_path: Path) -> None:
+    """A UDP listener that nothing was ever sent to, ended by ``--duration``: it used to exit 0 ("ended: duration
+    reached", frames in 0) with no outputs, which a script took for a recorded stream."""
+    out = tmp_path / "out"
+    src = f"udp://127.0.0.1:{free_port(ports=PORTS)}"
+    proc = subprocess.run(
+        _colonlight(src, "-o", str(out), "-m", "none", "--duration", "1"),
+        env=colonlight_env(),
+        capture_output=True,
+        timeout=60,
+    )
+    err = proc.stderr.decode()
+    assert proc.returncode == 1 and "Traceback" not in err, err
+    assert [line for line in err.splitlines() if line.startswith("error:")] == [
+        f"error: {src}: no video frame arrived in --duration 1 s"
+    ]
+    assert not out.exists()
+
+
 def test_outputs_of_an_earlier_stream_are_not_mixed(tmp_path: Path, live_clip: Path) -> None:
     out = tmp_path / "out"
     args = (str(live_clip), "-o", str(out), "-m", "none", "-q")
