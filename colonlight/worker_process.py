@@ -1,5 +1,6 @@
 """A pool worker's tie to the process that started it: every process pool of colonlight (the batch's clip
-workers, the generator's and the evaluation's render workers) dies with its parent, however the parent dies."""
+workers, the generator's and the evaluation's render workers) dies with its parent, however the parent dies, and
+is killed mid-job when its parent stops early (:func:`stop_workers`; :func:`map_in_workers` for a plain map)."""
 
 from __future__ import annotations
 
