@@ -11,14 +11,19 @@ nothing heavy at its top.
 
 from __future__ import annotations
 
+import _thread
 import functools
 import signal
+import sys
 import threading
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import ParamSpec, TypeVar
+from types import CodeType, FrameType
+from typing import Any, ParamSpec, TypeVar
 
 INTERRUPTED = "interrupted; rerun the same command to resume"
+_REDELIVER_S = 0.005
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -29,7 +34,8 @@ def signals_interrupt(
     signals: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM),
 ) -> Iterator[list[int]]:
     """Within the block, the first of ``signals`` raises ``KeyboardInterrupt``, once: a second signal during the
-    clean-up is ignored, so that the clean-up finishes. Yields the list the signal's number lands in.
+    clean-up is ignored, so that the clean-up finishes. Yields the list the signal's number lands in. An interrupt
+    raised where Python swallows exceptions (a weakref callback, ``__del__``) is raised again where it can act.
 
     Outside the main thread (where signal handlers cannot be set) nothing changes.
     """
@@ -37,19 +43,62 @@ def signals_interrupt(
     if threading.current_thread() is not threading.main_thread():
         yield received
         return
+    redeliver: list[bool] = []
+    own = signals[0]  # the signal an interrupt is delivered again by: its handler is ours
 
-    def handler(signum: int, frame: object) -> None:
-        if received:
+    def handler(signum: int, frame: FrameType | None) -> None:
+        if redeliver and _running(frame, unraisable.__code__):
+            _deliver_soon(own)  # not inside the hook, where it would be swallowed again
             return
-        received.append(signum)
+        if received and not redeliver:
+            return
+        redeliver.clear()
+        if not received:
+            received.append(signum)
         raise KeyboardInterrupt
 
+    previous_hook = sys.unraisablehook
+
+    def unraisable(args: Any) -> None:
+        # The interrupt was raised where Python cannot pass an exception on (a weakref callback, say importlib's
+        # module-lock one, or a __del__): it would be lost, the command would run on to the end, and stderr would
+        # show "Exception ignored ... KeyboardInterrupt". It is delivered again, at the next point that can take it.
+        if args.exc_type is not None and issubclass(args.exc_type, KeyboardInterrupt):
+            if not received:  # Python's own Ctrl-C handler raised it
+                received.append(signal.SIGINT)
+            redeliver.append(True)
+            _deliver_soon(own)
+            return
+        previous_hook(args)
+
     previous = {s: signal.signal(s, handler) for s in signals}
+    sys.unraisablehook = unraisable
     try:
         yield received
     finally:
+        sys.unraisablehook = previous_hook
         for s, h in previous.items():
             signal.signal(s, h)
+
+
+def _deliver_soon(signum: int) -> None:
+    """Have ``signum``'s handler run in the main thread a few milliseconds from now, from another thread: by then
+    the code that swallowed the interrupt has returned (tripping it from there would run the handler there)."""
+
+    def trip() -> None:
+        time.sleep(_REDELIVER_S)
+        _thread.interrupt_main(signal.Signals(signum))
+
+    threading.Thread(target=trip, name="colonlight-interrupt", daemon=True).start()
+
+
+def _running(frame: FrameType | None, code: CodeType) -> bool:
+    """Whether ``code`` is running in ``frame`` or any frame that called it."""
+    while frame is not None:
+        if frame.f_code is code:
+            return True
+        frame = frame.f_back
+    return False
 
 
 def exit_code(received: list[int]) -> int:
