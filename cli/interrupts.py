@@ -11,7 +11,6 @@ nothing heavy at its top.
 
 from __future__ import annotations
 
-import _thread
 import functools
 import signal
 import sys
@@ -85,9 +84,12 @@ def _deliver_soon(signum: int) -> None:
     """Have ``signum``'s handler run in the main thread a few milliseconds from now, from another thread: by then
     the code that swallowed the interrupt has returned (tripping it from there would run the handler there)."""
 
+    main = threading.main_thread().ident
+
     def trip() -> None:
         time.sleep(_REDELIVER_S)
-        _thread.interrupt_main(signal.Signals(signum))
+        if main is not None:
+            signal.pthread_kill(main, signum)
 
     threading.Thread(target=trip, name="colonlight-interrupt", daemon=True).start()
 

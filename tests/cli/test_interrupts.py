@@ -10,6 +10,7 @@ import gc
 import signal
 import time
 import weakref
+from collections.abc import Iterator
 
 import pytest
 from colonlight_cli.interrupts import signals_interrupt
@@ -33,6 +34,18 @@ def _signal_inside_a_weakref_callback(signum: int) -> None:
     assert ref() is None
 
 
+@pytest.fixture
+def python_handles_ctrl_c() -> Iterator[None]:
+    """Ctrl-C's handler as Python installs it (a shell that starts a job in the background leaves SIGINT ignored,
+    and Python then keeps it so)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@pytest.mark.usefixtures("python_handles_ctrl_c")
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
 def test_an_interrupt_swallowed_by_a_weakref_callback_is_raised_again(
     signum: int, capsys: pytest.CaptureFixture[str]
