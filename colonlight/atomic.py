@@ -73,17 +73,17 @@ def atomic_path(dest: Path, suffix: str | None = None) -> Iterator[Path]:
     ``suffix`` (default: that of ``dest``) is kept so that writers choosing a format by extension still work.
     """
     tmp: Path | None = None
-    try:
-        tmp = new_temporary(dest, suffix)  # inside the try: an interrupt as it returns still deletes it
+    try:  # from the temporary's creation to its rename: an interrupt anywhere in between deletes it
+        tmp = new_temporary(dest, suffix)
         yield tmp
         # again: a writer that replaces the file rather than writing into it (safetensors' save_file does)
         # leaves its own private mode, and a trained model's weights would be unreadable to the rest of a lab
         os.chmod(tmp, 0o666 & ~_UMASK)
+        publish(tmp, Path(dest))
     except BaseException:
         if tmp is not None:
             tmp.unlink(missing_ok=True)
         raise
-    publish(tmp, Path(dest))
 
 
 def write_temporary(dest: Path, data: bytes) -> Path:
@@ -108,7 +108,14 @@ def write_temporary(dest: Path, data: bytes) -> Path:
 
 def write_bytes_atomic(dest: Path, data: bytes) -> None:
     """Write ``data`` to ``dest`` atomically, flushed to disk before the rename."""
-    publish(write_temporary(dest, data), Path(dest))
+    tmp: Path | None = None
+    try:  # the temporary's name is held until the rename: an interrupt on the way to it deletes it
+        tmp = write_temporary(dest, data)
+        publish(tmp, Path(dest))
+    except BaseException:
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
+        raise
 
 
 def json_bytes(obj: Any) -> bytes:

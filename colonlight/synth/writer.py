@@ -171,8 +171,9 @@ def write_clip(
     try:
         _render_clip(out_dir, cfg, seed, video=video, frames=frames, clean=clean, depth=depth, crf=crf, overlay=overlay)
     except BaseException:
-        # an interrupt (SIGTERM's exception) can land inside mkstemp, after a frame's temporary exists and before
-        # the block that would delete it: the clip's folder is this run's alone, so every temporary in it goes
+        # an interrupt (SIGTERM's exception) can land where no writer's own clean-up reaches (the video's
+        # temporary is held by its writer across the render): the clip's folder is this run's alone, so every
+        # temporary in it goes
         remove_stale_temporaries(out_dir)
         raise
     return out_dir

@@ -52,3 +52,23 @@ def test_temporaries_have_the_usual_permissions_and_a_temporarys_name(tmp_path: 
     assert tmp != other and tmp.name.startswith(".frame.png.") and tmp.name.endswith(TMP_MARK + ".png")
     assert other.name.endswith(TMP_MARK + ".tmp.png")
     assert tmp.stat().st_mode & 0o777 == 0o644 and tmp.read_bytes() == b""
+
+
+@pytest.mark.parametrize("write", [_with_atomic_path, lambda dest: write_bytes_atomic(dest, b"new")])
+def test_an_interrupt_on_the_way_to_the_rename_leaves_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, write: Callable[[Path], object]
+) -> None:
+    """The temporary is written and the interrupt lands as the rename is entered (``publish`` called, nothing
+    renamed yet): the temporary's name is still held, so it goes, and the old file stays."""
+    import colonlight.atomic
+
+    def interrupted(tmp: Path, dest: Path) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(colonlight.atomic, "publish", interrupted)
+    dest = tmp_path / "out.json"
+    dest.write_bytes(b"old")
+    with pytest.raises(KeyboardInterrupt):
+        write(dest)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.json"]
+    assert dest.read_bytes() == b"old"
