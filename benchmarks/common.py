@@ -1,4 +1,5 @@
-"""Helpers shared by the benchmarks: timing medians, the reference fixture, table printing."""
+"""Helpers shared by the benchmarks: timing medians, the reference fixture, table printing, synthetic clips
+encoded by FFmpeg."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import hashlib
 import os
 import pickle
 import statistics
+import subprocess
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -61,3 +63,54 @@ def clip_cache(name: str, render: Callable[[], list[Any]]) -> list[Any]:
 
     write_bytes_atomic(cached, pickle.dumps(frames))
     return frames
+
+
+def ffmpeg_exe() -> str:
+    """The ffmpeg binary imageio-ffmpeg ships (the one the tests serve streams with)."""
+    import imageio_ffmpeg
+
+    return str(imageio_ffmpeg.get_ffmpeg_exe())
+
+
+def encode_synthetic_clip(
+    path: Path,
+    *,
+    seed: int,
+    render_size: tuple[int, int],
+    size: tuple[int, int],
+    fps: int,
+    rendered: int,
+    frames: int,
+    crf: int,
+    gop: int | None = None,
+) -> Path:
+    """An H.264 clip of ``frames`` frames at ``size`` (width, height): ``rendered`` frames of the generator's held-out
+    family at ``render_size`` (rendering a full-size frame takes seconds), played back and forth and upscaled
+    (bicubic) by FFmpeg; ``gop``: a keyframe every that many frames, as a live encoder sends."""
+    import numpy as np
+
+    from colonlight.synth import SynthConfig, generate_clip
+
+    cfg = SynthConfig.sample(
+        np.random.default_rng(seed),
+        split="heldout",
+        width=render_size[0],
+        height=render_size[1],
+        n_frames=rendered,
+        fps=float(fps),
+    )
+    images = [f.image for f in generate_clip(cfg, seed=seed)]
+    raw_input = ["-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{cfg.width}x{cfg.height}", "-framerate", str(fps)]
+    x264 = ["-c:v", "libx264", "-preset", "veryfast", "-crf", str(crf), *(["-g", str(gop)] if gop else [])]
+    cmd = [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y", *raw_input, "-i", "-"]
+    cmd += ["-vf", f"scale={size[0]}:{size[1]}:flags=bicubic", *x264, "-pix_fmt", "yuv420p", str(path)]
+    proc = subprocess.Popen(cmd, stdin=subprocess.PIPE)
+    assert proc.stdin is not None
+    period = 2 * len(images) - 2
+    for i in range(frames):
+        k = i % period
+        proc.stdin.write(images[k if k < len(images) else period - k].tobytes())
+    proc.stdin.close()
+    if proc.wait() != 0:
+        raise RuntimeError(f"ffmpeg failed to encode the benchmark clip {path.name}")
+    return path

@@ -30,17 +30,11 @@ import numpy as np
 
 from colonlight.limits import available_cores
 
-from .common import markdown_table
+from .common import encode_synthetic_clip, ffmpeg_exe, markdown_table
 
 REPEATS = int(os.environ.get("COLONLIGHT_BENCH_REPEATS", "3"))
 WIDTH, HEIGHT, SRC_FPS = 1350, 1080, 30
 GAMMA = 0.8  # the baseline's table; colonlight's gamma varies per frame, the cost of a table does not
-
-
-def ffmpeg_exe() -> str:
-    import imageio_ffmpeg
-
-    return imageio_ffmpeg.get_ffmpeg_exe()
 
 
 def colonlight_cmd() -> list[str]:
@@ -49,58 +43,13 @@ def colonlight_cmd() -> list[str]:
 
 
 def make_clip(path: Path, seconds: float, width: int, height: int, fps: int = SRC_FPS) -> Path:
-    """A synthetic colonoscopy clip: rendered at a quarter of the size, upscaled by FFmpeg, H.264 crf 18."""
-    from colonlight.synth import SynthConfig, generate_clip
-
+    """A synthetic colonoscopy clip: rendered at a quarter of the size, upscaled by FFmpeg, H.264 crf 18; longer
+    clips loop the rendered frames back and forth."""
     n = int(round(seconds * fps))
-    cfg = SynthConfig.sample(
-        np.random.default_rng(7),
-        split="heldout",
-        width=width // 2 // 2 * 2,
-        height=height // 2 // 2 * 2,
-        n_frames=min(n, 300),
-        fps=float(fps),
+    quarter = (width // 2 // 2 * 2, height // 2 // 2 * 2)
+    return encode_synthetic_clip(
+        path, seed=7, render_size=quarter, size=(width, height), fps=fps, rendered=min(n, 300), frames=n, crf=18
     )
-    frames = [f.image for f in generate_clip(cfg, seed=7)]
-    proc = subprocess.Popen(
-        [
-            ffmpeg_exe(),
-            "-hide_banner",
-            "-loglevel",
-            "error",
-            "-y",
-            "-f",
-            "rawvideo",
-            "-pix_fmt",
-            "rgb24",
-            "-s",
-            f"{cfg.width}x{cfg.height}",
-            "-framerate",
-            str(fps),
-            "-i",
-            "-",
-            "-vf",
-            f"scale={width}:{height}:flags=bicubic",
-            "-c:v",
-            "libx264",
-            "-preset",
-            "veryfast",
-            "-crf",
-            "18",
-            "-pix_fmt",
-            "yuv420p",
-            str(path),
-        ],
-        stdin=subprocess.PIPE,
-    )
-    assert proc.stdin is not None
-    for i in range(n):  # longer clips loop the rendered frames back and forth
-        k = i % (2 * len(frames) - 2)
-        proc.stdin.write(frames[k if k < len(frames) else 2 * len(frames) - 2 - k].tobytes())
-    proc.stdin.close()
-    if proc.wait() != 0:
-        raise RuntimeError("ffmpeg failed to encode the benchmark clip")
-    return path
 
 
 def timed(cmd: list[str]) -> tuple[float, int, float]:

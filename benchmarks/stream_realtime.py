@@ -32,7 +32,7 @@ import numpy as np
 
 from colonlight.limits import available_cores
 
-from .common import markdown_table
+from .common import encode_synthetic_clip, ffmpeg_exe, markdown_table
 
 SRC_FPS = 30
 LONG_SECONDS = 1800
@@ -40,66 +40,20 @@ SHORT_SECONDS = 60
 WARMUP_S = 5.0
 
 
-def ffmpeg_exe() -> str:
-    import imageio_ffmpeg
-
-    return imageio_ffmpeg.get_ffmpeg_exe()
-
-
 def make_feed(path: Path, width: int, height: int, seconds: float = 10.0) -> Path:
     """A synthetic clip rendered at a quarter of the size (60 frames, played back and forth) and upscaled."""
-    from colonlight.synth import SynthConfig, generate_clip
-
-    cfg = SynthConfig.sample(
-        np.random.default_rng(11),
-        split="heldout",
-        width=max(32, width // 4 // 2 * 2),
-        height=max(24, height // 4 // 2 * 2),
-        n_frames=60,
-        fps=float(SRC_FPS),
+    quarter = (max(32, width // 4 // 2 * 2), max(24, height // 4 // 2 * 2))
+    return encode_synthetic_clip(
+        path,
+        seed=11,
+        render_size=quarter,
+        size=(width, height),
+        fps=SRC_FPS,
+        rendered=60,
+        frames=int(seconds * SRC_FPS),
+        crf=20,
+        gop=SRC_FPS,
     )
-    frames = [f.image for f in generate_clip(cfg, seed=11)]
-    proc = subprocess.Popen(
-        [
-            ffmpeg_exe(),
-            "-hide_banner",
-            "-loglevel",
-            "error",
-            "-y",
-            "-f",
-            "rawvideo",
-            "-pix_fmt",
-            "rgb24",
-            "-s",
-            f"{cfg.width}x{cfg.height}",
-            "-framerate",
-            str(SRC_FPS),
-            "-i",
-            "-",
-            "-vf",
-            f"scale={width}:{height}:flags=bicubic",
-            "-c:v",
-            "libx264",
-            "-preset",
-            "veryfast",
-            "-crf",
-            "20",
-            "-g",
-            str(SRC_FPS),
-            "-pix_fmt",
-            "yuv420p",
-            str(path),
-        ],
-        stdin=subprocess.PIPE,
-    )
-    assert proc.stdin is not None
-    for i in range(int(seconds * SRC_FPS)):
-        k = i % (2 * len(frames) - 2)
-        proc.stdin.write(frames[k if k < len(frames) else 2 * len(frames) - 2 - k].tobytes())
-    proc.stdin.close()
-    if proc.wait() != 0:
-        raise RuntimeError("ffmpeg failed to encode the benchmark feed")
-    return path
 
 
 def _rss_mib(pid: int) -> float | None:
