@@ -645,7 +645,9 @@ def write_report(result: EvaluationResult, out_dir: Path, command: str | None = 
         for kind, data in contents.items():
             temporaries[kind] = write_temporary(paths[kind], data)
         for kind in list(temporaries):
-            publish(temporaries.pop(kind), paths[kind])
+            # the name is let go only once renamed: popped first, an interrupt as publish was entered left it
+            publish(temporaries[kind], paths[kind])
+            del temporaries[kind]
     finally:  # none is left behind by a failure or an interrupt
         for tmp in temporaries.values():
             tmp.unlink(missing_ok=True)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 from pathlib import Path
 
@@ -555,6 +556,29 @@ def test_report_files_are_complete_and_self_contained(all_methods_run: tuple) ->
     assert md.index("fixed: success") < md.index("affine: success")  # the paper's setting leads
     assert "gap_closed_tracked_fixed" in header and "tracked_fraction_affine" in header
     assert not re.search(r"https?://|<script|<link|src=\"(?!data:)", page)
+
+
+def test_an_interrupt_between_the_reports_renames_leaves_no_temporary(
+    all_methods_run: tuple, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The interrupt lands as the second rename is entered: the first file is in place, the others' temporaries
+    are deleted, none is left under a hidden name."""
+    import colonlight.evaluation.report as report
+
+    result, root = all_methods_run
+    out = root / "interrupted-report"
+    calls: list[Path] = []
+
+    def publish_then_interrupt(tmp: Path, dest: Path) -> None:
+        calls.append(dest)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        os.replace(tmp, dest)
+
+    monkeypatch.setattr(report, "publish", publish_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        write_report(result, out, command="colonlight evaluate --synthetic 1")
+    assert [p.name for p in out.iterdir()] == [calls[0].name]
 
 
 def _shipped_seed_frames() -> int:
