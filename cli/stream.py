@@ -245,9 +245,6 @@ def stream(
     summary = live.run()
     if pipe is not None:
         _quiet_stdout()
-    if not summary.error and summary.frames_decoded == 0 and summary.end in _NOTHING_CAME:
-        # a stream that gave nothing is a failure to a script, not a run that ended well (no outputs were made)
-        summary.error = f"{summary.source}: {_NOTHING_CAME[summary.end].format(duration=duration)}"
     if summary.error:
         error_line(summary.error)
     # a source never opened: its error line is all; stopped while waiting for one: the summary says so
@@ -257,13 +254,6 @@ def stream(
         console.print(f"outputs: {output}")
     if summary.error:
         raise typer.Exit(1)
-
-
-#: How a stream that ended without one decoded frame is said, by how it ended (a stop by the user is not a failure).
-_NOTHING_CAME = {
-    "duration reached": "no video frame arrived in --duration {duration:g} s",
-    "source ended": "the source ended before any video frame arrived",
-}
 
 
 def _quiet_stdout() -> None:

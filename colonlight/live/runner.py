@@ -258,6 +258,7 @@ class LiveStream:
             # every chosen frame that was not output was dropped: by the hand-off, or in hand when the stream stopped
             self.summary.frames_dropped = max(self.handoff.dropped, self.summary.frames_in - self.summary.frames_out)
             self.summary.take_latency(self.latency)
+            self._fail_if_nothing_came()
             if self.plan.out_dir is not None and self._opened:
                 try:
                     write_json_atomic(self.plan.out_dir / SUMMARY_FILE, self.record())  # whole or not at all
@@ -265,6 +266,16 @@ class LiveStream:
                     error = self._write_error(str(self.plan.out_dir / SUMMARY_FILE), exc)
                     self.summary.error = self.summary.error or str(error)
         return self.summary
+
+    def _fail_if_nothing_came(self) -> None:
+        """A stream that ended by itself or by its duration without one decoded frame failed: to a script it is not
+        a recording that went well (nothing was written). A stop by the caller is not a failure."""
+        if self.summary.error or self.summary.frames_decoded:
+            return
+        if self.summary.end == "duration reached":
+            self.summary.error = f"{self.spec.text}: no video frame arrived in the {self.opts.duration_s:g} s duration"
+        elif self.summary.end == "source ended":
+            self.summary.error = f"{self.spec.text}: the source ended before any video frame arrived"
 
     def _count_drops(self) -> None:
         self.summary.frames_dropped = self.handoff.dropped

@@ -558,7 +558,7 @@ def test_a_stream_that_never_gave_a_frame_is_a_one_line_failure(tmp_path: Path) 
     err = proc.stderr.decode()
     assert proc.returncode == 1 and "Traceback" not in err, err
     assert [line for line in err.splitlines() if line.startswith("error:")] == [
-        f"error: {src}: no video frame arrived in --duration 1 s"
+        f"error: {src}: no video frame arrived in the 1 s duration"
     ]
     assert not out.exists()
 

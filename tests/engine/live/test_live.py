@@ -21,6 +21,7 @@ from colonlight.live.stats import LatencyStats
 from colonlight.video import FpsSelector
 
 from ...media import ffmpeg_decoded, index_frame, needs_ffmpeg, read_index, vfr_times
+from ...ports import free_port
 
 # ----------------------------------------------------------------------------------------------- frame choice
 
@@ -224,3 +225,21 @@ def test_absent_capture_device_is_one_clear_line(tmp_path: Path) -> None:
     not_device.write_bytes(b"")
     with pytest.raises(InputError, match="not a capture device"):
         probe_device(not_device)
+
+
+def test_a_stream_that_never_gave_a_frame_fails_in_the_library_too() -> None:
+    """The engine decides it, not the CLI: a UDP listener nothing is sent to, ended by its duration, is an error
+    for every caller; stopped by the caller instead, it is not."""
+    import socket
+
+    from colonlight.live import LiveStream, StreamOptions
+    from colonlight.methods import create_method
+
+    src = parse_source(f"udp://127.0.0.1:{free_port(socket.SOCK_DGRAM, range(18700, 18750))}")
+    timed = LiveStream(src, create_method("none"), StreamOptions(duration_s=0.5, timeout_s=1.0)).run()
+    assert (timed.end, timed.frames_decoded) == ("duration reached", 0)
+    assert timed.error == f"{src.text}: no video frame arrived in the 0.5 s duration"
+    stopped = LiveStream(src, create_method("none"), StreamOptions(timeout_s=1.0))
+    threading.Timer(0.3, stopped.stop, args=("stopped by the caller",)).start()
+    summary = stopped.run()
+    assert (summary.end, summary.error) == ("stopped by the caller", None)
