@@ -15,10 +15,12 @@ Transform = Callable[[np.ndarray], np.ndarray]
 
 
 def display_matrix(frame: Any) -> np.ndarray | None:
-    for sd in frame.side_data:
-        if sd.type == SideDataType.DISPLAYMATRIX:
-            return np.frombuffer(bytes(sd), dtype=np.int32)[:9].copy()
-    return None
+    """The frame's display matrix (9 int32, 16.16 and 2.30 fixed point), if it has one.
+
+    Looked up by type, not by iterating: PyAV 18.1.1 made iterating the side data yield their types (a mapping's
+    keys), where 18.1.0 yielded the side data themselves; ``get`` by type means the same in both."""
+    sd = frame.side_data.get(SideDataType.DISPLAYMATRIX)
+    return None if sd is None else np.frombuffer(bytes(sd), dtype=np.int32)[:9].copy()
 
 
 def rotation_tag(stream: Any) -> int | None:
