@@ -101,7 +101,7 @@ def test_every_frame_video_and_jpeg(tree: Path, tmp_path: Path, random_weights: 
         s = c.streams.video[0]
         assert s.codec_context.name == "h264" and s.codec_context.pix_fmt == "yuv420p"
         assert sum(1 for _ in c.decode(video=0)) == 50
-    assert abs(float(s.average_rate) - 25.0) < 0.01
+        assert abs(float(s.average_rate) - 25.0) < 0.01  # read while open: PyAV 18.1.1 refuses a closed one's
 
 
 def test_video_only(tree: Path, tmp_path: Path, random_weights: Path) -> None:
