@@ -34,6 +34,11 @@ BACKOFF_START_S = 0.5
 BACKOFF_MAX_S = 8.0
 #: The rate assumed for a source that states none (raw H.264 without timing information).
 FALLBACK_RATE = Fraction(25)
+#: How far past its deadline a connection's waits may run: the processing loop, which looks at the clock every
+#: tenth of a second, must see the duration end before the reader reports a source that never answered.
+DEADLINE_GRACE_S = 0.5
+#: The shortest wait for a source: FFmpeg needs a moment even to fail.
+MIN_WAIT_S = 0.05
 
 
 @dataclass(frozen=True)
@@ -89,6 +94,15 @@ class StreamReader:
         self._last_arrival: float | None = None  # perf_counter of the last decoded frame
         self._pace_origin: float | None = None  # perf_counter at timeline 0, for --realtime
         self._ahead_max: float | None = None  # max over frames of (timeline time - arrival time): see _track_lag
+        self.deadline: float | None = None  # perf_counter when the run ends (its duration); None: no end
+
+    def _wait_limit(self) -> float:
+        """The timeout of the next connection's open and reads: ``timeout_s``, but never past the run's deadline, so
+        that a source that never answers does not hold a run with a duration for a whole timeout beyond it."""
+        if self.deadline is None:
+            return self.timeout_s
+        left = self.deadline + DEADLINE_GRACE_S - time.perf_counter()
+        return max(MIN_WAIT_S, min(self.timeout_s, left))
 
     # ------------------------------------------------------------------------------------------ thread body
 
@@ -105,7 +119,7 @@ class StreamReader:
         self.notify(f"{self.spec.text}: waiting for frames")
         while not self.stop.is_set():
             try:
-                container, stream = open_source(self.spec, self.timeout_s, self.stop)
+                container, stream = open_source(self.spec, self._wait_limit(), self.stop)
             except InputError as exc:
                 if not self.reconnect:
                     raise

@@ -206,6 +206,8 @@ class LiveStream:
     def run(self) -> StreamSummary:
         """Read, enhance and write until the source ends, :meth:`stop` is called or the duration is reached."""
         t0 = time.perf_counter()
+        if self.opts.duration_s is not None:
+            self.reader.deadline = t0 + self.opts.duration_s
         thread = threading.Thread(target=self.reader.run, name="colonlight-live-read", daemon=True)
         # one recurrent state for the whole stream, reconnects included; the content area found on the first frame
         stream = live_content_stream(self.method, self.opts.content)

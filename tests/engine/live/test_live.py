@@ -229,16 +229,19 @@ def test_absent_capture_device_is_one_clear_line(tmp_path: Path) -> None:
 
 def test_a_stream_that_never_gave_a_frame_fails_in_the_library_too() -> None:
     """The engine decides it, not the CLI: a UDP listener nothing is sent to, ended by its duration, is an error
-    for every caller; stopped by the caller instead, it is not."""
+    for every caller; stopped by the caller instead, it is not. The duration ends the run even while the source is
+    still being opened: a long --timeout does not hold it (the open used to wait the whole timeout)."""
     import socket
 
     from colonlight.live import LiveStream, StreamOptions
+    from colonlight.live.reader import DEADLINE_GRACE_S
     from colonlight.methods import create_method
 
     src = parse_source(f"udp://127.0.0.1:{free_port(socket.SOCK_DGRAM, range(18700, 18750))}")
-    timed = LiveStream(src, create_method("none"), StreamOptions(duration_s=0.5, timeout_s=1.0)).run()
+    timed = LiveStream(src, create_method("none"), StreamOptions(duration_s=0.5, timeout_s=60.0)).run()
     assert (timed.end, timed.frames_decoded) == ("duration reached", 0)
     assert timed.error == f"{src.text}: no video frame arrived in the 0.5 s duration"
+    assert timed.seconds < 0.5 + DEADLINE_GRACE_S + 5.0  # not the 60 s timeout
     stopped = LiveStream(src, create_method("none"), StreamOptions(timeout_s=1.0))
     threading.Timer(0.3, stopped.stop, args=("stopped by the caller",)).start()
     summary = stopped.run()
