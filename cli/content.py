@@ -12,7 +12,7 @@ import typer
 from colonlight.limits import DEFAULT_FPS
 
 from . import options
-from .display import console
+from .display import console, printable
 from .failures import FAILED, ends_command
 from .interrupts import interruptible
 
@@ -62,11 +62,13 @@ def content(
         x, y, w, h = summary["box"]
         described = f"box {w}x{h} at ({x}, {y}), field of view {summary['fov_fraction']:.0%}"
         described += f", {summary['overlay_pixels']} text pixels"
-    console.print(f"{clip}: {described} ({found.frames} frame{'' if found.frames == 1 else 's'})", soft_wrap=True)
+    console.print(
+        f"{printable(str(clip))}: {described} ({found.frames} frame{'' if found.frames == 1 else 's'})", soft_wrap=True
+    )
     if found.changes:
         at = ", ".join(str(i) for i in found.changes)
         console.print(f"the area changed at frame {at}; the mask is the one in use at the last frame")
-    console.print(f"wrote {output}")
+    console.print(f"wrote {printable(str(output))}", soft_wrap=True)
 
 
 def register(app: typer.Typer) -> None:

@@ -20,7 +20,7 @@ from colonlight import (
 )
 from colonlight.limits import DEFAULT_FPS
 
-from .display import BatchDisplay, console, error_line
+from .display import BatchDisplay, console, error_line, printable
 from .failures import USAGE, ends_command
 from .interrupts import interruptible
 
@@ -62,7 +62,10 @@ def demo(
     # clip and its enhanced result, and reported them as if they were of the length asked for.
     rendered = not clip_complete(clip_dir, cfg, DEMO_SEED, video=True)
     if rendered:
-        console.print(f"rendering a synthetic clip ({frames} frames at {DEMO_FPS:g} fps) into {clip_dir} ...")
+        console.print(
+            f"rendering a synthetic clip ({frames} frames at {DEMO_FPS:g} fps) into {printable(str(clip_dir))} ...",
+            soft_wrap=True,
+        )
         write_clip(clip_dir, cfg, seed=DEMO_SEED, video=True, frames=False)
     enhanced = output / "enhanced"
     jobs = discover_clips([video_path], enhanced)
@@ -87,11 +90,12 @@ def demo(
         f"\n[bold]colonlight demo done[/]: {len(gammas)} frames extracted at {DEFAULT_FPS:g} fps from a "
         f"{DEMO_FPS:g} fps clip, "
         f"gamma {min(gammas):.2f}..{max(gammas):.2f}\n"
-        f"  input clip      {video_path}\n"
-        f"  enhanced frames {result / 'frames'}/\n"
-        f"  per-frame gamma {result / GAMMAS_FILE}\n"
-        f"  enhanced video  {result / VIDEO_FILE}\n"
-        f"  manifest        {enhanced / MANIFEST_FILE}"
+        f"  input clip      {printable(str(video_path))}\n"
+        f"  enhanced frames {printable(str(result / 'frames'))}/\n"
+        f"  per-frame gamma {printable(str(result / GAMMAS_FILE))}\n"
+        f"  enhanced video  {printable(str(result / VIDEO_FILE))}\n"
+        f"  manifest        {printable(str(enhanced / MANIFEST_FILE))}",
+        soft_wrap=True,
     )
 
 

@@ -187,5 +187,5 @@ def summary(outcomes: list[ClipOutcome], seconds: float, out_dir: str) -> None:
         f"{frames / seconds:.1f}" if seconds > 0 else "-",
     )
     console.print(table)
-    console.print(f"outputs: {printable(out_dir)}")
+    console.print(f"outputs: {printable(out_dir)}", soft_wrap=True)
     sys.stderr.flush()

@@ -71,25 +71,28 @@ class _Display:
     def event(self, event: str, data: dict[str, Any]) -> None:
         if event == "skipped":
             self.n_methods -= 1
-            self.line(f"[yellow]skipped[/] method {data['method']}: {data['error']}")
+            self.line(f"[yellow]skipped[/] method {data['method']}: {printable(str(data['error']))}")
         elif event == "clip":
             self.clip_started = time.perf_counter()
             if self.progress:
                 self.progress.reset(self.methods, total=self.n_methods, visible=True)
-                self.progress.update(self.methods, description=f"  {data['clip']}")
+                self.progress.update(self.methods, description=f"  {printable(str(data['clip']))}")
         elif event == "method":
             if data.get("error"):
-                self.line(f"[red]failed[/]  {data['clip']} / {data['method']}: {data['error']}")
+                what = f"{data['clip']} / {data['method']}: {data['error']}"
+                self.line(f"[red]failed[/]  {printable(what)}")
             if self.progress:
                 self.progress.advance(self.methods)
-                self.progress.update(self.methods, description=f"  {data['clip']}: {data['method']} done")
+                self.progress.update(
+                    self.methods, description=f"  {printable(str(data['clip']))}: {data['method']} done"
+                )
         elif event == "failed":
-            self.line(f"[red]failed[/]  {data['error']}")
+            self.line(f"[red]failed[/]  {printable(str(data['error']))}")
             if self.progress:
                 self.progress.advance(self.clips)
         elif event == "done":
             seconds = time.perf_counter() - self.clip_started
-            self.line(f"[green]done[/]    {data['clip']} in {seconds:.1f} s")
+            self.line(f"[green]done[/]    {printable(str(data['clip']))} in {seconds:.1f} s")
             if self.progress:
                 self.progress.advance(self.clips)
                 self.progress.update(self.methods, visible=False)
@@ -275,7 +278,10 @@ def evaluate(
     rows = [*names, *(["rnn"] if authors_checkpoint is not None and "rnn" not in names else [])]
     specs = method_list(names, authors_checkpoint, chosen=options.method_kwargs(ctx, *rows))
     if authors_checkpoint is not None and not authors_checkpoint.is_file():
-        console.print(f"[yellow]note[/]: the authors' checkpoint {authors_checkpoint} is not a file")
+        console.print(
+            f"[yellow]note[/]: the authors' checkpoint {printable(str(authors_checkpoint))} is not a file",
+            soft_wrap=True,
+        )
 
     refs = find_clips(inputs or [])
     if synthetic:
@@ -291,12 +297,13 @@ def evaluate(
         def rendered(folder: Path, new: bool) -> None:
             done[0] += 1
             if new:
-                console.print(f"[dim]rendered[/] {folder} ({done[0]}/{synthetic})", soft_wrap=True)
+                console.print(f"[dim]rendered[/] {printable(str(folder))} ({done[0]}/{synthetic})", soft_wrap=True)
 
         if not quiet:
             console.print(
                 f"synthetic benchmark: {synthetic} clips ({family} settings) x {frames} frames ({size}x{size}) "
-                f"in {clip_dir}"
+                f"in {printable(str(clip_dir))}",
+                soft_wrap=True,
             )
         refs += make_benchmark(
             clip_dir,
@@ -327,7 +334,7 @@ def evaluate(
         for c in result.clips:
             for r in c.results.values():
                 if r.detail:
-                    console.print(r.detail)
+                    console.print(r.detail, markup=False)
     paths = write_report(result, output, command=options.invocation(ctx))
     modes = tuple(result.settings.get("brightness") or ())
     console.print(_summary_table(summarize(result), modes))
@@ -337,8 +344,8 @@ def evaluate(
             "optimised); gap closed = share of the input -> oracle-curve gap (success / tracked)"
         )
     shown = {key: printable(str(path)) for key, path in paths.items()}  # an OUTPUT with [/] in it is no markup
-    console.print(f"report: {shown['html']}")
-    console.print(f"tables: {shown['markdown']}, {shown['csv']}; everything: {shown['json']}")
+    console.print(f"report: {shown['html']}", soft_wrap=True)
+    console.print(f"tables: {shown['markdown']}, {shown['csv']}; everything: {shown['json']}", soft_wrap=True)
     if result.failed:
         raise typer.Exit(1)
 

@@ -57,9 +57,10 @@ def export(
     check = record["check"]["onnxruntime_vs_torch_max_abs_diff"]
     outputs = ", ".join(o["name"] for o in record["outputs"])
     console.print(
-        f"wrote {printable(str(output))} (opset {record['onnx']['opset']}, input {size}x{size}, outputs {outputs})"
+        f"wrote {printable(str(output))} (opset {record['onnx']['opset']}, input {size}x{size}, outputs {outputs})",
+        soft_wrap=True,
     )
-    console.print(f"wrote {printable(str(onnx_sidecar_path(output)))}")  # a name with [/] is no markup
+    console.print(f"wrote {printable(str(onnx_sidecar_path(output)))}", soft_wrap=True)  # a name with [/] is no markup
     if check is not None:
         console.print(f"checked against torch: max |difference| {check:.2g}")
 

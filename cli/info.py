@@ -8,7 +8,7 @@ import typer
 
 from colonlight import ColonlightError
 
-from .display import out
+from .display import out, printable
 
 
 def info(as_json: bool = typer.Option(False, "--json", help="Machine-readable output.")) -> None:
@@ -38,11 +38,11 @@ def info(as_json: bool = typer.Option(False, "--json", help="Machine-readable ou
     dm = record["default_model"]
     assert isinstance(dm, dict)
     if "error" in dm:
-        out.print(f"{'default model':>24}: [red]{dm['error']}[/]")
+        out.print(f"{'default model':>24}: [red]{printable(str(dm['error']))}[/]", soft_wrap=True)
     else:
         card = dm["card"]
         out.print(f"{'default model':>24}: {dm['name']}  sha256 {dm['sha256'][:16]}...")
-        out.print(f"{'':>24}  {dm['path']}")
+        out.print(f"{'':>24}  {printable(str(dm['path']))}", soft_wrap=True)
         if card:
             tr = card.get("training", {})
             shipped = tr.get("shipped_epoch")  # a run stopped or chosen before its last epoch

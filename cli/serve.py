@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from .display import error_line, printable
+from .display import error_line
 
 
 def serve(
@@ -38,7 +38,7 @@ def serve(
     try:  # made here, before uvicorn: a folder that cannot be made (under /proc, read-only) was a startup traceback
         Workspace(settings.data_dir).create()
     except OSError as exc:
-        where = printable(str(exc.filename or settings.data_dir))
+        where = exc.filename or settings.data_dir  # error_line escapes
         cause = "a file is in the way of a folder" if isinstance(exc, FileExistsError) else exc.strerror or str(exc)
         error_line(f"COLONLIGHT_DATA_DIR: cannot create or write {where}: {cause}")
         raise typer.Exit(2) from None

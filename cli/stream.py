@@ -34,7 +34,7 @@ from colonlight.live import (
 )
 
 from . import options
-from .display import console, error_line
+from .display import console, error_line, printable
 from .failures import FAILED, USAGE, ends_command
 from .loading import imports_frozen, load_method_or_exit
 
@@ -85,7 +85,7 @@ def _summary(summary: Any) -> None:
     note = f"ended: {summary.end}" if summary.end != "error" else "ended by an error"
     if summary.frames_damaged:
         note += f"; {summary.frames_damaged} undecodable packets skipped"
-    console.print(note, soft_wrap=True)
+    console.print(printable(note), soft_wrap=True)
 
 
 def stream(
@@ -231,7 +231,9 @@ def stream(
         pipe_file=sys.stdout.buffer if pipe else None,
     )
     notify = (
-        (lambda message: None) if quiet else (lambda message: console.print(f"[yellow]{message}[/]", soft_wrap=True))
+        (lambda message: None)
+        if quiet
+        else (lambda message: console.print(f"[yellow]{printable(message)}[/]", soft_wrap=True))
     )
     with ends_command(FAILED, debug):
         live = LiveStream(src, engine, opts, plan, notify=notify)
@@ -251,7 +253,7 @@ def stream(
     if (summary.connections or (summary.end and not summary.error)) and (not quiet or summary.error):
         _summary(summary)
     if output is not None and summary.frames_out:
-        console.print(f"outputs: {output}")
+        console.print(f"outputs: {printable(str(output))}", soft_wrap=True)
     if summary.error:
         raise typer.Exit(1)
 

@@ -54,7 +54,7 @@ def synth(
     overlay = OverlaySpec(border=border, fov=fov, text=text)  # type: ignore[arg-type]
     blocked = parent_problem(output / "clip")  # the folder, or a parent, is a file: said for what it is, first
     if blocked:
-        error_line(f"{printable(str(output))}: cannot write the clips: {blocked}")
+        error_line(f"{output}: cannot write the clips: {blocked}")  # error_line escapes
         raise typer.Exit(1)
     try:
         paths = make_dataset(
@@ -77,7 +77,7 @@ def synth(
         error_line(f"{exc.filename or output}: cannot write the clips: {exc.strerror or exc}")
         raise typer.Exit(1) from None
     for p in paths:
-        console.print(f"wrote {p}")
+        console.print(f"wrote {printable(str(p))}", soft_wrap=True)
 
 
 def register(app: typer.Typer) -> None:

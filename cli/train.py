@@ -512,7 +512,9 @@ def _train_zerodce(
 def _wrote(weights: Path) -> None:
     """The weights and card written, their paths shown as they are: an OUTPUT or --name with ``[/]`` in it was
     read as markup (a traceback after the run had written everything)."""
-    console.print(f"weights: {printable(str(weights))}\ncard:    {printable(str(weights.with_suffix('.json')))}")
+    console.print(
+        f"weights: {printable(str(weights))}\ncard:    {printable(str(weights.with_suffix('.json')))}", soft_wrap=True
+    )
 
 
 def _skip_line(reason: str) -> None:
