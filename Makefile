@@ -52,8 +52,12 @@ lint: install-test
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
+# The suite runs in TEST_WORKERS processes (pytest-xdist; 0: in this one), a test file's tests all in one of them:
+# a file's own loopback ports and module fixtures (a cluster, a server) are never shared between two processes.
+TEST_WORKERS ?= 2
+
 test: lint
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest --numprocesses $(TEST_WORKERS) --dist loadfile
 
 benchmark: install-test
 	$(BIN)/python -m benchmarks

@@ -44,3 +44,9 @@ def run_colonlight(
     output = proc.stdout + proc.stderr
     assert "Traceback" not in output, output
     return proc.returncode, output
+
+
+def boxed_text(output: str) -> str:
+    """``output`` with the frame of a usage-error box taken out and its lines joined: the box wraps its message at
+    the console's width, wherever a long path (a longer temporary folder) puts the break."""
+    return " ".join(output.translate(str.maketrans(dict.fromkeys("│╭╮╰╯─", " "))).split())

@@ -23,6 +23,8 @@ from cli.main import app
 from colonlight import ClipJob, ClipOptions, ClipOutcome, InputError, MethodSpec, read_content_mask, run_batch
 from colonlight.content_mask import BORDER, SCENE, area_image, image_area, pgm_bytes
 
+from ..commands import boxed_text
+
 runner = CliRunner()
 W, H = 16, 12
 
@@ -135,7 +137,7 @@ def test_a_folder_given_as_mask_is_named_a_folder(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="a folder, not a content mask image"):
         read_content_mask(tmp_path)
     result = runner.invoke(app, ["enhance", str(tmp_path), "-o", str(tmp_path / "o"), "--content", str(tmp_path)])
-    assert result.exit_code == 2 and "a folder" in result.output and "Traceback" not in result.output
+    assert result.exit_code == 2 and "a folder" in boxed_text(result.output) and "Traceback" not in result.output
 
 
 def test_huge_seconds_mean_the_whole_clip(clip: Path, tmp_path: Path) -> None:

@@ -14,7 +14,7 @@ from colonlight_cli.failures import FAILED, USAGE, ends_command
 
 from colonlight import InputError, OutputError
 
-from ..commands import PLAIN_CONSOLE
+from ..commands import PLAIN_CONSOLE, boxed_text
 
 
 def colonlight(*args: object) -> tuple[int, str]:
@@ -76,5 +76,5 @@ def test_train_into_a_name_too_long_is_a_usage_error(tmp_path: Path) -> None:
     """``train -o`` past NAME_MAX: ``Path.exists`` raised ENAMETOOLONG from the output check, a traceback."""
     code, err = colonlight("train", tmp_path / "clip.mp4", "-o", tmp_path / ("x" * 300), "--epochs", "1")
     assert code == USAGE
-    assert "Traceback" not in err and "cannot be used: File name too long" in err.replace("\n", ""), err
+    assert "Traceback" not in err and "cannot be used: File name too long" in boxed_text(err), err
     assert list(tmp_path.iterdir()) == []
