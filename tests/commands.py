@@ -1,5 +1,6 @@
 """The ``colonlight`` command as a real process, for the tests that need one (exit codes, signals, memory, a second
-process, what a terminal shows): how it is launched and in what environment, decided here once."""
+process, what a terminal shows), or in this process for the rest: how it is run and in what environment, and how
+its output is read, decided here once."""
 
 from __future__ import annotations
 
@@ -46,7 +47,20 @@ def run_colonlight(
     return proc.returncode, output
 
 
+def invoke_cli(*args: str) -> tuple[int, str]:
+    """``colonlight ARGS`` in this process (typer's CliRunner) on a wide, colourless console: its exit code and its
+    output, checked to have ended without an exception other than its exit and to hold no traceback."""
+    from colonlight_cli.main import app  # here, not at the top: the tests that only start processes do not load it
+    from typer.testing import CliRunner
+
+    result = CliRunner().invoke(app, list(args), env={"COLUMNS": "400", "NO_COLOR": "1"})
+    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
+    assert "Traceback" not in result.output, result.output
+    return result.exit_code, result.output
+
+
 def boxed_text(output: str) -> str:
-    """``output`` with the frame of a usage-error box taken out and its lines joined: the box wraps its message at
-    the console's width, wherever a long path (a longer temporary folder) puts the break."""
+    """``output`` with the frames of rich's boxes (a usage error, --help's panels) taken out and its lines joined:
+    a box wraps its text at the console's width, wherever a long path (a longer temporary folder) puts the break,
+    and a message wrapped over lines reads as one."""
     return " ".join(output.translate(str.maketrans(dict.fromkeys("│╭╮╰╯─", " "))).split())

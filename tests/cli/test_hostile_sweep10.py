@@ -14,19 +14,12 @@ import threading
 from pathlib import Path
 
 import pytest
-from colonlight_cli.main import app
-from typer.testing import CliRunner
 
 from colonlight import DEFAULT_WEIGHTS, InputError
 from colonlight.atomic import files_written_together
 from colonlight.sources import clip_kind
 
-
-def invoke(*args: str) -> tuple[int, str]:
-    result = CliRunner().invoke(app, list(args), env={"COLUMNS": "400", "NO_COLOR": "1"})
-    assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
-    assert "Traceback" not in result.output, result.output
-    return result.exit_code, result.output
+from ..commands import invoke_cli as invoke
 
 
 def test_an_export_under_a_link_loop_says_so(tmp_path: Path) -> None:

@@ -16,21 +16,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from colonlight_cli.main import app
-from typer.testing import CliRunner
 
 from colonlight import DEFAULT_WEIGHTS
 
+from ..commands import invoke_cli as invoke
 from ..commands import run_colonlight
 
 TINY = ["--size", "16", "--seq-len", "3", "--batch", "1", "--epochs", "1"]
-
-
-def invoke(*args: str) -> tuple[int, str]:
-    result = CliRunner().invoke(app, list(args), env={"COLUMNS": "400", "NO_COLOR": "1"})
-    assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
-    assert "Traceback" not in result.output, result.output
-    return result.exit_code, result.output
 
 
 def frames(folder: Path, n: int = 5, side: int = 32, seed: int = 0) -> Path:

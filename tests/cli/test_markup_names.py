@@ -8,20 +8,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from colonlight_cli.main import app
-from typer.testing import CliRunner
 
+from ..commands import invoke_cli as invoke
 from ..commands import run_colonlight
 from ..media import make_clip, text_file
 
 TINY_CLIPS = ("--frames", "4", "--width", "32", "--height", "32", "--no-video")
-
-
-def invoke(*args: str) -> tuple[int, str]:
-    result = CliRunner().invoke(app, list(args), env={"NO_COLOR": "1"})
-    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
-    assert "Traceback" not in result.output, result.output
-    return result.exit_code, result.output
 
 
 @pytest.fixture

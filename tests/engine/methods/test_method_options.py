@@ -24,6 +24,7 @@ from colonlight.limits import MAX_FPS, MAX_GAMMA, MAX_MODEL_SIZE, MIN_MODEL_SIZE
 from colonlight.methods import available_methods
 from colonlight.methods.options import OPTIONS, method_kwargs, methods_kwargs, option, request_options
 
+from ...commands import boxed_text
 from ...media import make_clip, needs_ffmpeg
 from ...service_server import ServiceServer
 
@@ -38,11 +39,6 @@ BAD_VALUES = [
     ("model_size", "rnn", str(MAX_MODEL_SIZE + 1)),
     ("model_size", "rnn", "huge"),
 ]
-
-
-def flat(text: str) -> str:
-    """CLI output without rich's box and wrapping: a message wrapped over lines reads as one."""
-    return " ".join(re.sub("[│╭╮╰╯─]", " ", text).split())
 
 
 def message_of(name: str, value: str) -> str:
@@ -110,12 +106,12 @@ def test_options_go_to_the_methods_that_take_them() -> None:
 def test_every_option_is_a_flag_of_the_commands_that_run_methods(name: str) -> None:
     """Same flag, help, environment variable in enhance, stream and evaluate, and in their rendered --help."""
     params = {p.name: p for p in command(name).params}
-    shown = flat(runner.invoke(app, [name, "--help"], terminal_width=200).output)
+    shown = boxed_text(runner.invoke(app, [name, "--help"], terminal_width=200).output)
     for opt in OPTIONS:
         param = params[opt.name]
         assert opt.flag in param.opts, (name, opt.name)
         assert getattr(param, "help", None) == opt.description and param.envvar == opt.envvar, (name, opt.name)
-        assert opt.flag in shown and flat(opt.description)[:60] in shown, (name, opt.name)
+        assert opt.flag in shown and boxed_text(opt.description)[:60] in shown, (name, opt.name)
 
 
 @pytest.mark.parametrize(("name", "method", "value"), BAD_VALUES)
@@ -126,16 +122,16 @@ def test_the_cli_refuses_out_of_range_values_with_the_declared_message(
         methods = ["--method" if cmd[0] == "enhance" else "--methods", method]
         result = runner.invoke(app, [*cmd, *methods, option(name).flag, value])
         assert result.exit_code == 2, result.output
-        assert message_of(name, value) in flat(result.output) and "Traceback" not in result.output
+        assert message_of(name, value) in boxed_text(result.output) and "Traceback" not in result.output
     assert not (tmp_path / "o").exists()
 
 
 def test_a_flag_the_methods_do_not_take_is_a_usage_error(tmp_path: Path) -> None:
     enhance = runner.invoke(app, ["enhance", str(tmp_path), "--method", "rnn", "--gamma", "2"])
-    assert enhance.exit_code == 2 and "gamma applies only to method gamma, not 'rnn'" in flat(enhance.output)
+    assert enhance.exit_code == 2 and "gamma applies only to method gamma, not 'rnn'" in boxed_text(enhance.output)
     evaluate = runner.invoke(app, ["evaluate", str(tmp_path), "--methods", "none,he", "--model-size", "64"])
     assert evaluate.exit_code == 2
-    assert "model_size applies only to method rnn, not 'none' or 'he'" in flat(evaluate.output)
+    assert "model_size applies only to method rnn, not 'none' or 'he'" in boxed_text(evaluate.output)
 
 
 @needs_ffmpeg
@@ -230,7 +226,7 @@ def test_an_option_the_method_does_not_take_is_refused_alike(server: ServiceServ
     r = submit(server, clip, method="rnn", gamma="2")
     assert r.status_code == 422 and "gamma applies only to method gamma, not 'rnn'" in r.json()["message"]
     cli = runner.invoke(app, ["enhance", str(clip), "-o", str(tmp_path), "--method", "rnn", "--gamma", "2"])
-    assert cli.exit_code == 2 and "gamma applies only to method gamma, not 'rnn'" in flat(cli.output)
+    assert cli.exit_code == 2 and "gamma applies only to method gamma, not 'rnn'" in boxed_text(cli.output)
 
 
 @needs_ffmpeg
