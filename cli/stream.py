@@ -7,7 +7,7 @@ import contextlib
 import signal
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import typer
 
@@ -254,8 +254,24 @@ def stream(
         _summary(summary)
     if output is not None and summary.frames_out:
         console.print(f"outputs: {printable(str(output))}", soft_wrap=True)
+    if not live.wait_source_closed(0):
+        _end_now(1 if summary.error else 0)
     if summary.error:
         raise typer.Exit(1)
+
+
+def _end_now(code: int) -> NoReturn:
+    """End the process now, everything written and closed: the run left its reader in a read of a source gone
+    silent (up to --timeout, forever on a silent standard input), and the interpreter must not be torn down under
+    a thread inside FFmpeg (the library's exit hook would instead wait for it)."""
+    import logging
+    import os
+
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):
+            stream.flush()
+    os._exit(code)
 
 
 def _quiet_stdout() -> None:

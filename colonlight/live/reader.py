@@ -121,7 +121,7 @@ class StreamReader:
             try:
                 container, stream = open_source(self.spec, self._wait_limit(), self.stop)
             except InputError as exc:
-                if not self.reconnect:
+                if not self.reconnect or self.stop.is_set():  # a run that has ended hears of no more retries
                     raise
                 self.notify(f"{exc}; retrying in {backoff:g} s")
                 self.stop.wait(backoff)

@@ -9,12 +9,13 @@ finished, the outputs are closed complete, and the summary is made.
 
 from __future__ import annotations
 
+import atexit
 import os
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from fractions import Fraction
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -29,7 +30,7 @@ from ..pipeline import FRAMES_DIR
 from ..provenance import library_versions
 from .handoff import DROP_POLICIES, FrameHandoff, HandoffClosed
 from .outputs import LOG_FILE, SUMMARY_FILE, FrameFolder, FrameOutput, GammaLog, PipeClosed, open_pipe
-from .reader import LiveFrame, StreamReader
+from .reader import DEADLINE_GRACE_S, LiveFrame, StreamReader
 from .source import SourceSpec
 from .stats import LatencyStats, StreamSummary
 
@@ -37,10 +38,37 @@ from .stats import LatencyStats, StreamSummary
 DEFAULT_BUFFER = 2
 #: Seconds without data after which a network source or device counts as lost.
 DEFAULT_TIMEOUT_S = 5.0
-#: The longest --timeout: the run waits for its reader thread for ``timeout + 1`` s at the end, and Python's
-#: thread waits refuse more than ``threading.TIMEOUT_MAX`` (~292 years on Linux) with an OverflowError.
+#: The longest --timeout: PyAV turns it into FFmpeg's microseconds, and Python's thread waits refuse more than
+#: ``threading.TIMEOUT_MAX`` (~292 years on Linux) with an OverflowError.
 MAX_TIMEOUT_S = 1e9
+#: How long the end of a run waits for its reader thread (longer for an open the duration bounds: see
+#: :meth:`LiveStream._reader_wait_s`). A reader blocked in a read of a source gone silent (its timeout is fixed when
+#: the connection opens) or on a silent standard input is left to end by itself: a stop or the duration ends the
+#: run now, not up to a --timeout later.
+READER_JOIN_S = 0.5
 _POLL_S = 0.1  # how often the processing loop looks at the stop flag while waiting for a frame
+
+#: Readers that a run left in a read, each with the perf_counter time by which its own timeout ends it.
+_left_readers: list[tuple[threading.Thread, float]] = []
+_left_readers_lock = threading.Lock()
+
+
+def _leave_reader(thread: threading.Thread, until: float) -> None:
+    with _left_readers_lock:
+        _left_readers[:] = [(t, u) for t, u in _left_readers if t.is_alive()]  # constant memory in a long process
+        _left_readers.append((thread, until))
+
+
+@atexit.register
+def _join_left_readers() -> None:
+    """At exit, wait for every reader still in a read (each for at most its timeout + 1 s, as a run once did):
+    the interpreter must not be torn down under a thread inside FFmpeg, whose interrupt callback takes the GIL.
+    (Measured: a script that froze its objects with ``gc.freeze()``, as the CLI does, and ended while an RTSP
+    listener waited for its next publisher died of SIGSEGV in 2 runs of 3.)"""
+    with _left_readers_lock:
+        left = list(_left_readers)
+    for thread, until in left:
+        thread.join(max(0.0, until - time.perf_counter()))
 
 
 @dataclass(frozen=True)
@@ -153,6 +181,7 @@ class LiveStream:
         self._where = ""  # the output being opened (for an error line)
         self._log: GammaLog | None = None
         self._opened = False
+        self._thread: threading.Thread | None = None  # the reader's, once run() has started it
 
     def stop(self, reason: str = "stopped") -> None:
         """End the stream soon (thread- and signal-safe): the frame in hand is finished, the rest is dropped."""
@@ -208,7 +237,7 @@ class LiveStream:
         t0 = time.perf_counter()
         if self.opts.duration_s is not None:
             self.reader.deadline = t0 + self.opts.duration_s
-        thread = threading.Thread(target=self.reader.run, name="colonlight-live-read", daemon=True)
+        thread = self._thread = threading.Thread(target=self.reader.run, name="colonlight-live-read", daemon=True)
         # one recurrent state for the whole stream, reconnects included; the content area found on the first frame
         stream = live_content_stream(self.method, self.opts.content)
         waiting: deque[LiveFrame] = deque()
@@ -249,7 +278,11 @@ class LiveStream:
         finally:
             self._stop.set()
             self.handoff.cancel()
-            thread.join(timeout=self.opts.timeout_s + 1.0)
+            ended = time.perf_counter()
+            thread.join(timeout=self._reader_wait_s())
+            if thread.is_alive():  # still in a read: what it counts from now on goes to a summary no one reads
+                self.summary = replace(self.summary)
+                _leave_reader(thread, ended + self.opts.timeout_s + 1.0)
             try:
                 self._close_outputs()
             except PipeClosed:
@@ -268,6 +301,24 @@ class LiveStream:
                     error = self._write_error(str(self.plan.out_dir / SUMMARY_FILE), exc)
                     self.summary.error = self.summary.error or str(error)
         return self.summary
+
+    def _reader_wait_s(self) -> float:
+        """How long the end of the run waits for the reader: READER_JOIN_S, or until an open begun during a run with
+        a duration has given up (its wait ends DEADLINE_GRACE_S after the deadline), so that a listener's port is
+        free again when :meth:`run` returns in that common case; never longer than the reader's own timeout + 1 s."""
+        wait = READER_JOIN_S
+        if self.reader.deadline is not None:
+            wait = max(wait, self.reader.deadline + DEADLINE_GRACE_S + READER_JOIN_S - time.perf_counter())
+        return min(self.opts.timeout_s + 1.0, wait)
+
+    def wait_source_closed(self, timeout_s: float | None = None) -> bool:
+        """Wait up to ``timeout_s`` (None: for good) for the source to be closed after :meth:`run`; True once it is.
+        A read the run left to time out by itself holds the source, a UDP or RTSP listener's port for one, for up
+        to the stream's timeout."""
+        thread = self._thread
+        if thread is not None:
+            thread.join(timeout_s)
+        return thread is None or not thread.is_alive()
 
     def _fail_if_nothing_came(self) -> None:
         """A stream that ended by itself or by its duration without one decoded frame failed: to a script it is not

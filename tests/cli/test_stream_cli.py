@@ -331,6 +331,52 @@ def test_rtsp_source_that_stops_and_comes_back_reconnects_with_state_kept(
     assert summary["connections"] == 2 and summary["frames_out"] == len(records)
 
 
+_LIBRARY_LISTENER = """
+import gc, signal, sys
+from colonlight.live import LiveStream, StreamOptions, parse_source
+from colonlight.methods import create_method
+
+method = create_method("rnn")
+gc.freeze()  # as the CLI does once the model is loaded; with it, the crash below came nearly every time
+live = LiveStream(
+    parse_source(sys.argv[1], None, {"rtsp_flags": "listen"}),
+    method,
+    StreamOptions(reconnect=True, timeout_s=90.0, drop="never"),
+    notify=lambda message: print(message, file=sys.stderr, flush=True),
+)
+signal.signal(signal.SIGINT, lambda *_: live.stop())
+print(live.run().end, flush=True)
+"""
+
+
+def test_a_library_script_that_ends_while_its_reader_listens_exits_cleanly(tmp_path: Path, live_clip: Path) -> None:
+    """From Python, a stop returns run() at once and may leave the reader inside FFmpeg (here listening for the next
+    RTSP publisher after a reconnect). A script that then just ends must not crash: the interpreter was torn down
+    under that thread and the process died of SIGSEGV (2 runs of 3 here, with the hook removed); the library's exit
+    hook now waits for the reader."""
+    port = free_port(ports=PORTS)
+    url = f"rtsp://127.0.0.1:{port}/live"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _LIBRARY_LISTENER, url],
+        env=colonlight_env(),
+        stderr=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+    )
+    err = Stderr(proc)
+    try:
+        err.wait_for("waiting for frames")
+        _rtsp_publish(live_clip, url)
+        err.wait_for("reconnecting in")
+        time.sleep(2.0)  # listening for the next publisher
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(45) == 0, err.done()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.stdout is not None and proc.stdout.read().decode().strip() == "stopped", err.done()
+    assert "Traceback" not in err.done()
+
+
 # ---------------------------------------------------------------------------------------------- pipes
 
 

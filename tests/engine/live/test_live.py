@@ -4,6 +4,8 @@ statistics, the y4m writer (read back by the ffmpeg binary), source parsing and 
 from __future__ import annotations
 
 import io
+import socket
+import subprocess
 import threading
 import time
 from fractions import Fraction
@@ -20,7 +22,7 @@ from colonlight.live.source import parse_source, probe_device
 from colonlight.live.stats import LatencyStats
 from colonlight.video import FpsSelector
 
-from ...media import ffmpeg_decoded, index_frame, needs_ffmpeg, read_index, vfr_times
+from ...media import X264, ffmpeg_decoded, ffmpeg_exe, index_frame, make_clip, needs_ffmpeg, read_index, vfr_times
 from ...ports import free_port
 
 # ----------------------------------------------------------------------------------------------- frame choice
@@ -246,3 +248,43 @@ def test_a_stream_that_never_gave_a_frame_fails_in_the_library_too() -> None:
     threading.Timer(0.3, stopped.stop, args=("stopped by the caller",)).start()
     summary = stopped.run()
     assert (summary.end, summary.error) == ("stopped by the caller", None)
+
+
+@needs_ffmpeg
+@pytest.mark.timeout(120)
+def test_a_stop_while_a_silent_source_is_read_returns_at_once_and_the_source_is_freed_by_its_timeout(
+    tmp_path: Path,
+) -> None:
+    """A UDP stream (sent by the ffmpeg binary) that delivered frames and went silent: the reader is blocked in a
+    read whose timeout (12 s) was fixed when the connection opened. A stop returns the run at once with the summary
+    as it stood; the read, left to time out by itself, then frees the listener's port (wait_source_closed)."""
+    from colonlight.live import LiveStream, StreamOptions
+    from colonlight.methods import create_method
+
+    exe = ffmpeg_exe()
+    assert exe is not None
+    clip = make_clip(tmp_path / "clip.ts", 30, 30, (128, 96), codec_args=(*X264, "-g", "15"))
+    port = free_port(socket.SOCK_DGRAM, range(18750, 18800))
+    live = LiveStream(parse_source(f"udp://127.0.0.1:{port}"), create_method("none"), StreamOptions(timeout_s=12.0))
+    stopped_at: list[float] = []
+
+    def send_then_stop() -> None:
+        time.sleep(0.5)  # the reader listens first
+        udp = f"udp://127.0.0.1:{port}?pkt_size=1316"
+        subprocess.run([exe, "-v", "error", "-nostdin", "-re", "-i", str(clip), "-c", "copy", "-f", "mpegts", udp])
+        time.sleep(1.0)  # silent now, the connection open
+        stopped_at.append(time.perf_counter())
+        live.stop("stopped by the caller")
+
+    sender = threading.Thread(target=send_then_stop)
+    sender.start()
+    summary = live.run()
+    took = time.perf_counter() - stopped_at[0]
+    sender.join()
+    assert (summary.end, summary.error) == ("stopped by the caller", None)
+    assert summary.frames_decoded > 0 and summary.connections == 1
+    assert took < 6.0, took  # not the 12 s read timeout (the end used to wait for it)
+    assert not live.wait_source_closed(0)  # still in its read
+    assert live.wait_source_closed(30)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as again:
+        again.bind(("127.0.0.1", port))  # the port is free once the source is closed

@@ -285,3 +285,56 @@ def test_sigterm_mid_stream_leaves_every_output_whole(tmp_path: Path, clips: dic
     assert json.loads((out / "stream.json").read_text())["summary"]["frames_out"] == len(records)
     with av.open(str(piped)) as c:
         assert sum(1 for _ in c.decode(video=0)) == len(records)
+
+
+@pytest.mark.parametrize("ending", ["ctrl-c", "duration"])
+def test_a_source_gone_silent_does_not_hold_the_end_for_its_timeout(
+    tmp_path: Path, clips: dict[str, Path], ending: str
+) -> None:
+    """Standard input that gave its frames and then says nothing (the writer alive, the pipe open): Ctrl-C, or the
+    duration, ends the run at once, not a ``--timeout`` (60 s here) later. The reader, still blocked in its read,
+    is left to end by itself; the outputs are whole. The end used to wait for the reader for the timeout + 1 s."""
+    exe = ffmpeg_exe()
+    assert exe is not None
+    y4m = subprocess.run(
+        [exe, "-v", "error", "-nostdin", "-i", str(clips["live"]), "-f", "yuv4mpegpipe", "-"],
+        check=True,
+        capture_output=True,
+    ).stdout
+    out = tmp_path / "out"
+    until = ("--duration", "6") if ending == "duration" else ()
+    t0 = time.monotonic()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "colonlight_cli.main", "stream", "-", "-o", str(out), "-m", "none"]
+        + ["--timeout", "60", "--drop", "never", *until],
+        env=colonlight_env(),
+        stdin=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    assert proc.stdin is not None
+    try:
+        proc.stdin.write(y4m)  # 150 frames at 30 fps: 90 at 18 fps; the pipe stays open and silent
+        proc.stdin.flush()
+        _wait_for_records(out, 90, proc)
+        if ending == "ctrl-c":
+            t0 = time.monotonic()
+            proc.send_signal(signal.SIGINT)
+        proc.wait(45)  # not communicate(), which would close standard input: an end of the source
+        took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+        proc.stdin.close()
+    assert proc.stderr is not None
+    err = proc.stderr.read().decode(errors="replace")
+    assert "Traceback" not in err, err
+    # 6 s duration from the start of the run; a stop at once. Either way far below the 60 s timeout.
+    assert took < (30 if ending == "duration" else 20), (took, err)
+    end = "duration reached" if ending == "duration" else "stopped (Ctrl-C)"
+    assert f"ended: {end}" in err, err
+    records = _log(out)
+    summary = json.loads((out / "stream.json").read_text())["summary"]
+    assert summary["end"] == end and summary["frames_decoded"] == 150
+    assert summary["frames_out"] == len(records) == 90 and [r["index"] for r in records] == _frames(out)
