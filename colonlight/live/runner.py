@@ -303,12 +303,13 @@ class LiveStream:
         return self.summary
 
     def _reader_wait_s(self) -> float:
-        """How long the end of the run waits for the reader: READER_JOIN_S, or until an open begun during a run with
-        a duration has given up (its wait ends DEADLINE_GRACE_S after the deadline), so that a listener's port is
-        free again when :meth:`run` returns in that common case; never longer than the reader's own timeout + 1 s."""
+        """How long the end of the run waits for the reader: READER_JOIN_S; when the duration ended the run, until an
+        open it bounds has given up (DEADLINE_GRACE_S after the deadline), so that a listener's port is free again
+        when :meth:`run` returns in that common case. Never longer than the reader's own timeout + 1 s."""
         wait = READER_JOIN_S
-        if self.reader.deadline is not None:
-            wait = max(wait, self.reader.deadline + DEADLINE_GRACE_S + READER_JOIN_S - time.perf_counter())
+        deadline, now = self.reader.deadline, time.perf_counter()
+        if deadline is not None and now >= deadline:  # not for a stop long before it (a Ctrl-C 1 h into 2 h)
+            wait = max(wait, deadline + DEADLINE_GRACE_S + READER_JOIN_S - now)
         return min(self.opts.timeout_s + 1.0, wait)
 
     def wait_source_closed(self, timeout_s: float | None = None) -> bool:

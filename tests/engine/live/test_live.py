@@ -252,12 +252,14 @@ def test_a_stream_that_never_gave_a_frame_fails_in_the_library_too() -> None:
 
 @needs_ffmpeg
 @pytest.mark.timeout(120)
+@pytest.mark.parametrize("duration_s", [None, 600.0])
 def test_a_stop_while_a_silent_source_is_read_returns_at_once_and_the_source_is_freed_by_its_timeout(
-    tmp_path: Path,
+    tmp_path: Path, duration_s: float | None
 ) -> None:
     """A UDP stream (sent by the ffmpeg binary) that delivered frames and went silent: the reader is blocked in a
     read whose timeout (12 s) was fixed when the connection opened. A stop returns the run at once with the summary
-    as it stood; the read, left to time out by itself, then frees the listener's port (wait_source_closed)."""
+    as it stood, also long before a duration's end; the read, left to time out by itself, then frees the
+    listener's port (wait_source_closed)."""
     from colonlight.live import LiveStream, StreamOptions
     from colonlight.methods import create_method
 
@@ -265,7 +267,11 @@ def test_a_stop_while_a_silent_source_is_read_returns_at_once_and_the_source_is_
     assert exe is not None
     clip = make_clip(tmp_path / "clip.ts", 30, 30, (128, 96), codec_args=(*X264, "-g", "15"))
     port = free_port(socket.SOCK_DGRAM, range(18750, 18800))
-    live = LiveStream(parse_source(f"udp://127.0.0.1:{port}"), create_method("none"), StreamOptions(timeout_s=12.0))
+    live = LiveStream(
+        parse_source(f"udp://127.0.0.1:{port}"),
+        create_method("none"),
+        StreamOptions(timeout_s=12.0, duration_s=duration_s),
+    )
     stopped_at: list[float] = []
 
     def send_then_stop() -> None:
