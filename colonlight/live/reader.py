@@ -128,7 +128,7 @@ class StreamReader:
                 backoff = min(2 * backoff, BACKOFF_MAX_S)
                 continue
             self.summary.connections += 1
-            if self.summary.connections > 1:
+            if self.summary.connections > 1 and not self.stop.is_set():
                 self.notify(f"{self.spec.text}: reconnected (connection {self.summary.connections})")
             decoded_before = self.summary.frames_decoded
             try:
