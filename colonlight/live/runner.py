@@ -100,6 +100,10 @@ class StreamOptions:
             raise OptionError(
                 f"timeout must be a number of seconds above 0 and at most {MAX_TIMEOUT_S:.0f}, got {self.timeout_s}"
             )
+        # `not > 0`, so that NaN is refused too: a 0 s duration read nothing and failed as a stream that "gave no
+        # frame"; NaN never ended; a negative one ended at once (infinity is no limit, and allowed)
+        if self.duration_s is not None and not self.duration_s > 0:
+            raise OptionError(f"duration must be a number of seconds above 0, got {self.duration_s}")
         # stored parsed, as ClipOptions stores it: "AUTO" kept as given was taken for a mask's path when the record
         # was written, and stream.json was lost to "No such file or directory"
         object.__setattr__(self, "content", parse_content(self.content))

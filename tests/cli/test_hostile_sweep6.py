@@ -43,6 +43,16 @@ def test_a_stream_timeout_past_any_thread_wait_is_a_usage_error(clip: Path, tmp_
     assert not out.exists()
 
 
+@pytest.mark.parametrize("duration", ["0", "0.0"])
+def test_a_zero_stream_duration_is_a_usage_error(clip: Path, tmp_path: Path, duration: str) -> None:
+    """``--duration 0`` read nothing and failed at run time (exit 1) as a stream that gave no frame."""
+    out = tmp_path / "live"
+    code, output = run_colonlight("stream", str(clip), "-o", str(out), "-m", "gamma", "--duration", duration)
+    assert code == 2, output
+    assert "duration must be a number of seconds above 0, got 0.0" in output, output
+    assert not out.exists()
+
+
 def test_float_tiff_frames_with_nan_or_one_channel_are_enhanced_quietly(clip: Path, tmp_path: Path) -> None:
     inputs = tmp_path / "in"
     nan, grey = inputs / "nan", inputs / "grey"

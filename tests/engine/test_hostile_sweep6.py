@@ -146,6 +146,13 @@ def test_a_stream_timeout_no_thread_wait_takes_is_an_option_error(timeout: float
     assert StreamOptions(timeout_s=1e9).timeout_s == 1e9
 
 
+@pytest.mark.parametrize("duration", [0.0, -1.0, math.nan])
+def test_a_stream_duration_that_is_not_above_0_is_an_option_error(duration: float) -> None:
+    with pytest.raises(OptionError, match="duration must be a number of seconds above 0"):
+        StreamOptions(duration_s=duration)
+    assert StreamOptions(duration_s=math.inf).duration_s == math.inf  # no limit
+
+
 @pytest.mark.parametrize("size", ["W0 H0", "W-5 H10", "W20000 H20000"])
 def test_a_y4m_header_ffmpeg_refuses_is_not_called_a_busy_device(tmp_path: Path, size: str) -> None:
     path = tmp_path / "clip.y4m"
