@@ -34,22 +34,25 @@ def clip(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return make_clip(tmp_path_factory.mktemp("clip") / "a.mp4", 8, size=(64, 48))
 
 
-@pytest.mark.parametrize("timeout", ["inf", "1e308"])
-def test_a_stream_timeout_past_any_thread_wait_is_a_usage_error(clip: Path, tmp_path: Path, timeout: str) -> None:
-    out = tmp_path / "live"
-    code, output = run_colonlight("stream", str(clip), "-o", str(out), "-m", "gamma", "--timeout", timeout)
-    assert code == 2, output
-    assert "timeout must be a number of seconds above 0 and at most 1000000000" in output, output
-    assert not out.exists()
+_TIMEOUT_RANGE = "timeout must be a number of seconds above 0 and at most 1000000000"
 
 
-@pytest.mark.parametrize("duration", ["0", "0.0"])
-def test_a_zero_stream_duration_is_a_usage_error(clip: Path, tmp_path: Path, duration: str) -> None:
-    """``--duration 0`` read nothing and failed at run time (exit 1) as a stream that gave no frame."""
+@pytest.mark.parametrize(
+    ("option", "value", "message"),
+    [
+        ("--timeout", "inf", _TIMEOUT_RANGE),
+        ("--timeout", "1e308", _TIMEOUT_RANGE),
+        # read nothing and failed at run time (exit 1) as a stream that gave no frame
+        ("--duration", "0", "duration must be a number of seconds above 0, got 0.0"),
+    ],
+)
+def test_a_stream_timeout_or_duration_out_of_range_is_a_usage_error(
+    clip: Path, tmp_path: Path, option: str, value: str, message: str
+) -> None:
     out = tmp_path / "live"
-    code, output = run_colonlight("stream", str(clip), "-o", str(out), "-m", "gamma", "--duration", duration)
+    code, output = run_colonlight("stream", str(clip), "-o", str(out), "-m", "gamma", option, value)
     assert code == 2, output
-    assert "duration must be a number of seconds above 0, got 0.0" in output, output
+    assert message in output, output
     assert not out.exists()
 
 
