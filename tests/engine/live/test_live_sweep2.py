@@ -126,10 +126,11 @@ def _listening(port: int) -> bool:
     return False
 
 
-def _stream_proc(*args: str, stdout: object) -> subprocess.Popen[bytes]:
+def _stream_proc(*args: str, stdout: object, stdin: object = None) -> subprocess.Popen[bytes]:
     return subprocess.Popen(
         [sys.executable, "-m", "colonlight_cli.main", "stream", *args, "-m", "none"],
         env=colonlight_env(),
+        stdin=stdin,  # type: ignore[arg-type]
         stdout=stdout,  # type: ignore[arg-type]
         stderr=subprocess.PIPE,
     )
@@ -304,13 +305,17 @@ def test_a_source_gone_silent_does_not_hold_the_end_for_its_timeout(
     out = tmp_path / "out"
     until = ("--duration", "6") if ending == "duration" else ()
     t0 = time.monotonic()
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "colonlight_cli.main", "stream", "-", "-o", str(out), "-m", "none"]
-        + ["--timeout", "60", "--drop", "never", *until],
-        env=colonlight_env(),
+    proc = _stream_proc(
+        "-",
+        "-o",
+        str(out),
+        "--timeout",
+        "60",
+        "--drop",
+        "never",
+        *until,
         stdin=subprocess.PIPE,
         stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
     )
     assert proc.stdin is not None
     try:
