@@ -42,9 +42,9 @@ DEFAULT_TIMEOUT_S = 5.0
 #: ``threading.TIMEOUT_MAX`` (~292 years on Linux) with an OverflowError.
 MAX_TIMEOUT_S = 1e9
 #: How long the end of a run waits for its reader thread (longer for an open the duration bounds: see
-#: :meth:`LiveStream._reader_wait_s`). A reader blocked in a read of a source gone silent (its timeout is fixed when
-#: the connection opens) or on a silent standard input is left to end by itself: a stop or the duration ends the
-#: run now, not up to a --timeout later.
+#: :meth:`LiveStream._reader_wait_s`). A reader blocked in a read of a network source gone silent (its timeout is
+#: fixed when the connection opens) is left to end by itself: a stop or the duration ends the run now, not up to a
+#: --timeout later. (Standard input's reads see the stop: see :class:`~colonlight.live.source.StdinInput`.)
 READER_JOIN_S = 0.5
 _POLL_S = 0.1  # how often the processing loop looks at the stop flag while waiting for a frame
 

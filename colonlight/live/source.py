@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import os
+import select
 import stat
 import threading
 import time
@@ -148,12 +149,44 @@ def is_rtsp_listen(spec: SourceSpec) -> bool:
     return _scheme(spec.url) in ("rtsp", "rtsps") and "listen" in spec.options.get("rtsp_flags", "").split("+")
 
 
-def _open_container(spec: SourceSpec, timeout_s: float, options: dict[str, str]) -> Any:
+#: How often a read of standard input that waits for data looks at the run's stop flag.
+STDIN_POLL_S = 0.1
+#: The most one read of standard input takes (PyAV's buffer): a 1080p raw frame arrives in a dozen reads.
+STDIN_BUFFER = 1 << 18
+
+
+class StdinInput:
+    """Standard input as PyAV reads a file object: its bytes as they come, and the end of the stream once ``stop``
+    is set. FFmpeg's own pipe read waits in the kernel, where neither a stop nor FFmpeg's interrupt callback reaches
+    it: a run stopped on a silent pipe left its reader thread blocked for as long as the pipe stayed silent. As
+    FFmpeg's pipe, it waits for its producer for good (a pipe that pauses is not lost) and cannot seek."""
+
+    def __init__(self, fd: int, stop: threading.Event | None) -> None:
+        self.fd = fd
+        self.stop = stop
+
+    def read(self, size: int) -> bytes:
+        """Up to ``size`` bytes once some are there; b"" (the end) at the end of input or once stopped."""
+        while self.stop is None or not self.stop.is_set():
+            ready, _, _ = select.select([self.fd], [], [], STDIN_POLL_S)
+            if ready:
+                try:
+                    return os.read(self.fd, size)
+                except BlockingIOError:  # a non-blocking pipe (its writer's choice) that was not ready after all
+                    continue
+        return b""
+
+
+def _open_container(
+    spec: SourceSpec, timeout_s: float, options: dict[str, str], stop: threading.Event | None = None
+) -> Any:
     kwargs: dict[str, Any] = {"mode": "r", "metadata_errors": "replace", "options": options}
     if spec.format:
         kwargs["format"] = spec.format
-    if spec.kind != "file":  # standard input may wait for its producer to start: only reads time out
-        kwargs["timeout"] = (None if spec.kind == "stdin" else timeout_s, timeout_s)
+    if spec.kind == "stdin":  # no timeout: its reads wait for the producer, and end on a stop
+        return av.open(StdinInput(0, stop), buffer_size=STDIN_BUFFER, **kwargs)
+    if spec.kind != "file":
+        kwargs["timeout"] = (timeout_s, timeout_s)
     return av.open(spec.url, **kwargs)
 
 
@@ -178,14 +211,15 @@ def _listen(spec: SourceSpec, timeout_s: float, stop: threading.Event | None) ->
 def open_source(spec: SourceSpec, timeout_s: float, stop: threading.Event | None = None) -> tuple[Any, Any]:
     """Open ``spec`` and pick its video stream; one InputError line on failure.
 
-    ``timeout_s`` bounds opening (but for standard input) and every later read: a silent network source raises
-    instead of blocking. A listening RTSP source waits ``timeout_s`` for its publisher, ended early by ``stop``.
+    ``timeout_s`` bounds opening and every later read of a network source or device: a silent one raises instead
+    of blocking. A listening RTSP source waits ``timeout_s`` for its publisher, ended early by ``stop``. Standard
+    input waits for its producer for good; ``stop`` ends its open or read as the end of the input.
     """
     try:
         if is_rtsp_listen(spec):
             container = _listen(spec, timeout_s, stop)
         else:
-            container = _open_container(spec, timeout_s, dict(spec.options))
+            container = _open_container(spec, timeout_s, dict(spec.options), stop)
     except (av.error.FFmpegError, OSError, ValueError, UnicodeError) as exc:
         raise InputError(f"{spec.text}: cannot open ({_cause(exc)})") from exc
     try:

@@ -343,3 +343,96 @@ def test_a_source_gone_silent_does_not_hold_the_end_for_its_timeout(
     summary = json.loads((out / "stream.json").read_text())["summary"]
     assert summary["end"] == end and summary["frames_decoded"] == 150
     assert summary["frames_out"] == len(records) == 90 and [r["index"] for r in records] == _frames(out)
+
+
+def _y4m(clip: Path) -> bytes:
+    exe = ffmpeg_exe()
+    assert exe is not None
+    cmd = [exe, "-v", "error", "-nostdin", "-i", str(clip), "-f", "yuv4mpegpipe", "-"]
+    return subprocess.run(cmd, check=True, capture_output=True).stdout
+
+
+#: A library caller reading standard input: it stops the run once every frame it was given is read, the pipe still
+#: open and silent, then asks whether the source was closed, and ends.
+_LIBRARY_STDIN = """
+import sys, threading, time
+from colonlight.live import LiveStream, StreamOptions, parse_source
+from colonlight.methods import create_method
+
+live = LiveStream(parse_source("-"), create_method("none"), StreamOptions(timeout_s=60.0, drop="never"))
+
+def stop_when_all_read():
+    while live.summary.frames_decoded < int(sys.argv[1]):
+        time.sleep(0.05)
+    time.sleep(0.5)  # the reader is in its next read, which the pipe does not answer
+    live.stop("stopped by the caller")
+
+threading.Thread(target=stop_when_all_read, daemon=True).start()
+summary = live.run()
+t0 = time.perf_counter()
+closed = live.wait_source_closed(5.0)
+print(summary.end, summary.frames_decoded, closed, f"{time.perf_counter() - t0:.2f}", flush=True)
+"""
+
+
+def test_a_library_stop_on_a_silent_standard_input_ends_its_read_too(clips: dict[str, Path]) -> None:
+    """From Python, a stop on standard input that gave its frames and stays open ends the reader's read as well as
+    the run: the source is closed within a read's slice, and the script ends at once. FFmpeg's pipe read waited in
+    the kernel: the reader stayed blocked while the pipe was silent, wait_source_closed said False, and the exit
+    waited the timeout + 1 s (61 s here) for it."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _LIBRARY_STDIN, "150"],
+        env=colonlight_env(),
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    assert proc.stdin is not None and proc.stdout is not None and proc.stderr is not None
+    try:
+        proc.stdin.write(_y4m(clips["live"]))  # 150 frames; the pipe stays open
+        proc.stdin.flush()
+        line = proc.stdout.readline().decode()
+        t0 = time.monotonic()
+        code = proc.wait(30)  # not communicate(), which would close standard input: an end of the source
+        exit_s = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+        proc.stdin.close()
+    err = proc.stderr.read().decode(errors="replace")
+    assert code == 0 and "Traceback" not in err, err
+    end, decoded, closed, close_s = line.rsplit(" ", 3)
+    assert (end, decoded, closed) == ("stopped by the caller", "150", "True"), (line, err)
+    assert float(close_s) < 2.0 and exit_s < 10.0, (line, exit_s)
+
+
+def test_standard_input_that_pauses_longer_than_the_timeout_is_waited_for(
+    tmp_path: Path, clips: dict[str, Path]
+) -> None:
+    """A pipe is not a network source: its producer may pause (a recorder that stalls) for longer than --timeout
+    (1 s here), and every frame after the pause is still read; the stream ends when the pipe closes."""
+    data = clips["live"].read_bytes()  # MPEG-TS: cut at a packet boundary, the halves join byte for byte
+    half = len(data) // 188 // 2 * 188
+    out = tmp_path / "out"
+    proc = _stream_proc(
+        "-", "-o", str(out), "--timeout", "1", "--fps", "0", "--drop", "never",
+        stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+    )  # fmt: skip
+    assert proc.stdin is not None and proc.stderr is not None
+    try:
+        proc.stdin.write(data[:half])
+        proc.stdin.flush()
+        time.sleep(3.0)  # three timeouts of silence, the pipe open
+        proc.stdin.write(data[half:])
+        proc.stdin.close()
+        code = proc.wait(60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    err = proc.stderr.read().decode(errors="replace")
+    assert code == 0 and "Traceback" not in err, err
+    summary = json.loads((out / "stream.json").read_text())["summary"]
+    assert (summary["end"], summary["frames_decoded"], summary["frames_out"]) == ("source ended", 150, 150), err
+    assert [r["index"] for r in _log(out)] == list(range(150))
