@@ -8,10 +8,12 @@ import signal
 import sys
 
 from .interrupts import exit_code, signals_interrupt
+from .std_streams import fill_closed_standard_streams
 
 
 def run() -> None:
     """Load the command line, then run it (``colonlight_cli.main.run``)."""
+    fill_closed_standard_streams()  # before anything opens a file
     # the handler is put back once loaded: from there each command handles SIGTERM as it must (serve: uvicorn's)
     with signals_interrupt((signal.SIGTERM,)) as received:
         try:

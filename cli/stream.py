@@ -189,13 +189,15 @@ def stream(
         raise typer.BadParameter(f"choose {' or '.join(PIPE_FORMATS)}", param_hint="--pipe")
     if output is None and pipe is None:
         raise typer.BadParameter("nothing to write: give --output DIR and/or --pipe y4m|mpegts")
-    if pipe is not None and sys.stdout.isatty():
+    if pipe is not None and (sys.stdout is None or sys.stdout.isatty()):  # None: started with standard output closed
+        state = "closed" if sys.stdout is None else "a terminal"
         raise typer.BadParameter(
-            "standard output is a terminal: send it to a program (| consumer) or a file", param_hint="--pipe"
+            f"standard output is {state}: send it to a program (| consumer) or a file", param_hint="--pipe"
         )
-    if source == "-" and sys.stdin.isatty():
+    if source == "-" and (sys.stdin is None or sys.stdin.isatty()):
+        state = "closed" if sys.stdin is None else "a terminal"
         raise typer.BadParameter(
-            "standard input is a terminal: pipe a stream into it (producer | colonlight stream -)", param_hint="SRC"
+            f"standard input is {state}: pipe a stream into it (producer | colonlight stream -)", param_hint="SRC"
         )
     try:
         opts = StreamOptions(

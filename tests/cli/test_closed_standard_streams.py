@@ -1,0 +1,75 @@
+"""Commands started with a standard stream closed (``2>&-``, ``>&-``, ``<&-``, or a parent that closed it).
+
+Defects found: ``enhance`` with standard error closed did all its work and then exited 1 (an AttributeError, out of
+sight, on flushing a stream Python had set to None); ``stream -`` with standard input closed, and ``stream --pipe``
+with standard output closed, ended in a traceback. Now a closed descriptor is opened on the null device before
+anything else is opened (so no output file takes its number), the report is dropped, and the two stream cases are
+usage errors naming the closed stream.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from ..commands import PLAIN_CONSOLE, colonlight_command, colonlight_env
+from ..media import ffmpeg_fps_indices, make_clip, needs_ffmpeg
+
+pytestmark = needs_ffmpeg
+
+
+def _run_closed(fd: int, args: list[str], cwd: Path, module: bool = False) -> tuple[int, str]:
+    """``colonlight ARGS`` (the console script, or ``python -m colonlight_cli.main``) with descriptor ``fd`` closed;
+    its exit code and whatever it wrote to the standard streams still open."""
+    cmd = [sys.executable, "-m", "colonlight_cli.main", *args] if module else colonlight_command(*args)
+    done = subprocess.run(
+        cmd,
+        cwd=cwd,
+        env={**colonlight_env(), **PLAIN_CONSOLE},
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT if fd != 2 else subprocess.DEVNULL,
+        preexec_fn=lambda: os.close(fd),  # in the child only, after the redirections
+        timeout=240,
+        check=False,
+    )
+    output = done.stdout.decode(errors="replace")
+    assert "Traceback" not in output, output
+    return done.returncode, output
+
+
+@pytest.fixture(scope="module")
+def clips(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("closed-streams") / "clips"
+    folder.mkdir()
+    make_clip(folder / "a.mp4", 20, 25)
+    return folder
+
+
+@pytest.mark.parametrize(("fd", "module"), [(2, False), (2, True), (1, False)], ids=["stderr", "stderr-m", "stdout"])
+def test_enhance_with_a_standard_stream_closed_succeeds_with_whole_outputs(
+    clips: Path, tmp_path: Path, fd: int, module: bool
+) -> None:
+    code, output = _run_closed(fd, ["enhance", str(clips), "-o", "out", "-m", "none"], tmp_path, module)
+    assert code == 0, output
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    assert [c["status"] for c in manifest["clips"]] == ["done"], manifest
+    gammas = json.loads((tmp_path / "out" / "a" / "gammas.json").read_text())
+    frames = sorted((tmp_path / "out" / "a" / "frames").iterdir())
+    assert len(frames) == len(gammas["frames"]) == len(ffmpeg_fps_indices(clips / "a.mp4"))  # as ffmpeg's fps=18
+
+
+def test_stream_from_a_closed_standard_input_is_a_usage_error(tmp_path: Path) -> None:
+    code, output = _run_closed(0, ["stream", "-", "-o", "out", "-m", "none"], tmp_path)
+    assert code == 2 and "standard input is closed" in output, output
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_pipe_to_a_closed_standard_output_is_a_usage_error(clips: Path, tmp_path: Path) -> None:
+    code, output = _run_closed(1, ["stream", str(clips / "a.mp4"), "--pipe", "y4m", "-m", "none"], tmp_path)
+    assert code == 2 and "standard output is closed" in output, output
