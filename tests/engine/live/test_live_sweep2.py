@@ -293,8 +293,8 @@ def test_a_source_gone_silent_does_not_hold_the_end_for_its_timeout(
     tmp_path: Path, clips: dict[str, Path], ending: str
 ) -> None:
     """Standard input that gave its frames and then says nothing (the writer alive, the pipe open): Ctrl-C, or the
-    duration, ends the run at once, not a ``--timeout`` (60 s here) later. The reader, still blocked in its read,
-    is left to end by itself; the outputs are whole. The end used to wait for the reader for the timeout + 1 s."""
+    duration, ends the run at once, not a ``--timeout`` (60 s here) later, and the outputs are whole. The end used
+    to wait for the reader, blocked in its read, for the timeout + 1 s."""
     exe = ffmpeg_exe()
     assert exe is not None
     y4m = subprocess.run(
