@@ -27,7 +27,10 @@ def test_run_batch_leaves_process_settings_alone(tmp_path: Path, random_weights:
         outcomes = run_batch(discover_clips([clip], tmp_path / "out"), spec, ClipOptions(), tmp_path / "out")
         assert [o.status for o in outcomes] == ["done"]
         assert torch.get_num_threads() == 3
-        assert gc.get_threshold() == thresholds and gc.get_freeze_count() == frozen
+        assert gc.get_threshold() == thresholds
+        # gc.freeze() would add every object tracked since the last one (thousands at least). The count may fall a
+        # little: objects an earlier in-process command froze can die meanwhile (33 did in a two-process run).
+        assert gc.get_freeze_count() <= frozen
     finally:
         torch.set_num_threads(before_threads)
 
