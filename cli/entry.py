@@ -8,12 +8,13 @@ import signal
 import sys
 
 from .interrupts import exit_code, signals_interrupt
-from .std_streams import fill_closed_standard_streams
+from .process_start import fill_closed_standard_streams, refuse_a_deleted_working_folder
 
 
 def run() -> None:
     """Load the command line, then run it (``colonlight_cli.main.run``)."""
     fill_closed_standard_streams()  # before anything opens a file
+    refuse_a_deleted_working_folder()
     # the handler is put back once loaded: from there each command handles SIGTERM as it must (serve: uvicorn's)
     with signals_interrupt((signal.SIGTERM,)) as received:
         try:

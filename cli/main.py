@@ -17,7 +17,7 @@ from . import content, demo, enhance, evaluate, export, info, stream, synth, tra
 from .display import FlagsWithoutType, error_line
 from .failures import FAILED, USAGE
 from .interrupts import INTERRUPTED
-from .std_streams import fill_closed_standard_streams
+from .process_start import fill_closed_standard_streams, refuse_a_deleted_working_folder
 
 app = typer.Typer(
     name="colonlight",
@@ -57,6 +57,7 @@ except ImportError:  # pragma: no cover
 def run() -> None:
     """Console-script entry: run the app, turning expected errors into one line and exit code 1."""
     fill_closed_standard_streams()  # (again: ``python -m colonlight_cli.main`` starts here)
+    refuse_a_deleted_working_folder()
     debug = os.environ.get("COLONLIGHT_DEBUG", "") not in ("", "0") or "--debug" in sys.argv
     try:
         app()

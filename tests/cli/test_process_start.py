@@ -1,10 +1,12 @@
-"""Commands started with a standard stream closed (``2>&-``, ``>&-``, ``<&-``, or a parent that closed it).
+"""Commands started in a process they cannot use as it is: a standard stream closed (``2>&-``, ``>&-``, ``<&-``,
+or a parent that closed it), or a current folder that was deleted.
 
 Defects found: ``enhance`` with standard error closed did all its work and then exited 1 (an AttributeError, out of
 sight, on flushing a stream Python had set to None); ``stream -`` with standard input closed, and ``stream --pipe``
 with standard output closed, ended in a traceback. Now a closed descriptor is opened on the null device before
 anything else is opened (so no output file takes its number), the report is dropped, and the two stream cases are
-usage errors naming the closed stream.
+usage errors naming the closed stream. In a deleted current folder every command that loaded torch died with
+"Intel oneMKL FATAL ERROR: Cannot load libtorch_cpu.so" (exit 2); it is now one line.
 """
 
 from __future__ import annotations
@@ -73,3 +75,23 @@ def test_stream_from_a_closed_standard_input_is_a_usage_error(tmp_path: Path) ->
 def test_a_pipe_to_a_closed_standard_output_is_a_usage_error(clips: Path, tmp_path: Path) -> None:
     code, output = _run_closed(1, ["stream", str(clips / "a.mp4"), "--pipe", "y4m", "-m", "none"], tmp_path)
     assert code == 2 and "standard output is closed" in output, output
+
+
+@pytest.mark.parametrize("module", [False, True], ids=["script", "module"])
+def test_a_deleted_current_folder_is_one_line(clips: Path, tmp_path: Path, module: bool) -> None:
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    cmd = [sys.executable, "-m", "colonlight_cli.main"] if module else colonlight_command()
+    done = subprocess.run(
+        [*cmd, "enhance", str(clips), "-o", str(tmp_path / "out"), "-m", "none"],
+        env={**colonlight_env(), **PLAIN_CONSOLE},
+        capture_output=True,
+        text=True,
+        preexec_fn=lambda: (os.chdir(gone), os.rmdir(gone)),  # in the child only: its folder goes before it starts
+        timeout=120,
+        check=False,
+    )
+    output = done.stdout + done.stderr
+    assert done.returncode == 1, output
+    assert output == "error: the current folder no longer exists (deleted, or moved away): cd to one that does\n"
+    assert not (tmp_path / "out").exists()
