@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 import unicodedata
@@ -23,8 +24,25 @@ from typer.core import TyperGroup
 
 from colonlight import ClipOutcome, PathProblem
 
-console = Console(stderr=True, highlight=False)
-out = Console(highlight=False)
+
+class ReportConsole(Console):
+    """A console whose reader may go away (``| head -1``, a pager quit early): the report stops, the work goes on.
+    rich's default ends the process (SystemExit 1) from inside whatever printed, which stopped a batch between two
+    clips, silently, with the rest undone."""
+
+    def on_broken_pipe(self) -> None:
+        self.quiet = True  # nothing more is rendered
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:  # what else writes there (Python at exit, a library) writes nowhere, without an error
+            os.dup2(null, self.file.fileno())
+        except (OSError, ValueError, AttributeError):  # not a file with a descriptor: the quiet console suffices
+            pass
+        finally:
+            os.close(null)
+
+
+console = ReportConsole(stderr=True, highlight=False)
+out = ReportConsole(highlight=False)
 
 
 #: Unicode categories never printed as they are: controls (a newline), formats (a right-to-left override),
