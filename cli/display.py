@@ -96,7 +96,10 @@ def printable(text: str) -> str:
 
 def error_line(message: str) -> None:
     """One line on stderr, no traceback."""
-    console.print(f"[bold red]error:[/] {printable(message)}", soft_wrap=True)
+    try:
+        console.print(f"[bold red]error:[/] {printable(message)}", soft_wrap=True)
+    except MemoryError:  # rich loads modules as it renders: under a memory limit that loaded torch half-way, text
+        sys.stderr.write(f"error: {message.encode('ascii', 'backslashreplace').decode('ascii')}\n")
 
 
 def problem_line(problem: PathProblem) -> None:

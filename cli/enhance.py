@@ -14,10 +14,8 @@ from colonlight import (
     MethodSpec,
     OptionError,
     OutputError,
-    available_methods,
     default_workers,
     discover,
-    is_available,
     network_threads,
     output_lock,
     read_camera,
@@ -100,10 +98,7 @@ def enhance(
 ) -> None:
     # One line: `colonlight --help` shows the docstring's line breaks as they are.
     """Enhance every clip under INPUTS into OUTPUT/<clip>/ (frames/, gammas.json, enhanced.mp4, times.txt, rgb.txt) plus OUTPUT/manifest.json."""  # noqa: E501
-    if not is_available(method):  # imports this method only (all of them only to list them in the error)
-        raise typer.BadParameter(
-            f"unknown method {method!r}; available: {', '.join(available_methods())}", param_hint="--method"
-        )
+    options.check_method(method)
     if fmt not in ("png", "jpg"):
         raise typer.BadParameter("choose png or jpg", param_hint="--format")
     options.check_fps(fps)

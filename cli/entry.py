@@ -4,6 +4,7 @@ SIGTERM then (``kill``, ``docker stop`` right after a start) likewise, with exit
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 
@@ -22,4 +23,11 @@ def run() -> None:
         except KeyboardInterrupt:
             sys.stderr.write("error: interrupted\n")
             raise SystemExit(exit_code(received)) from None
+        except (ImportError, MemoryError, OSError) as exc:  # libraries that do not load (under a memory limit)
+            if os.environ.get("COLONLIGHT_DEBUG", "") not in ("", "0") or "--debug" in sys.argv:
+                raise
+            from colonlight.errors import load_failure_cause
+
+            sys.stderr.write(f"error: cannot load colonlight's libraries: {load_failure_cause(exc)}\n")
+            raise SystemExit(1) from None
     run_app()

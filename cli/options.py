@@ -10,7 +10,8 @@ from typing import Any
 
 import typer
 
-from colonlight.errors import MethodOptionError
+from colonlight import METHOD_NAMES, method_problem
+from colonlight.errors import ColonlightError, MethodOptionError
 from colonlight.limits import (
     DEFAULT_MAX_GAP_FRAMES,
     DEFAULT_MAX_PIXELS,
@@ -159,3 +160,14 @@ def check_fps(fps: float) -> None:
             f"must be within 0..{MAX_FPS:g} frames per second (0 keeps every frame; else at least 1/1001), got {fps:g}",
             param_hint="--fps",
         )
+
+
+def check_method(method: str) -> None:
+    """--method: an unknown name is a usage error; a known one whose implementation does not load here (torch under
+    a memory limit) is a failure, exit 1, saying why. Imports that method only (all of them to list them)."""
+    problem = method_problem(method)
+    if problem is None:
+        return
+    if method not in METHOD_NAMES:
+        raise typer.BadParameter(problem, param_hint="--method")
+    raise ColonlightError(problem)

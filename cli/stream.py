@@ -14,8 +14,6 @@ import typer
 from colonlight import (
     MethodSpec,
     OptionError,
-    available_methods,
-    is_available,
     network_threads,
     reuse_frame_memory,
 )
@@ -177,10 +175,7 @@ def stream(
         return
     if source is None:
         raise typer.BadParameter("missing SRC (a device, URL, file or -)", param_hint="SRC")
-    if not is_available(method):
-        raise typer.BadParameter(
-            f"unknown method {method!r}; available: {', '.join(available_methods())}", param_hint="--method"
-        )
+    options.check_method(method)
     if fmt not in ("png", "jpg"):
         raise typer.BadParameter("choose png or jpg", param_hint="--format")
     options.check_fps(fps)

@@ -75,6 +75,8 @@ _EXPORTS: dict[str, str] = {
     "available_methods": "methods",
     "create_method": "methods",
     "is_available": "methods",
+    "method_problem": "methods",
+    "METHOD_NAMES": "methods",
     "parse_model_size": "methods.rnn",
     "train_zerodce": "methods.zerodce_train",
     "OutputError": "outdir",
@@ -134,7 +136,16 @@ if TYPE_CHECKING:
     from .errors import CheckpointError, ColonlightError, DeviceError, InputError, OptionError
     from .frames import decode_image, encode_image
     from .jobs import ClipJob, ClipOutcome, MethodSpec, estimate_frames, method_for, run_clip
-    from .methods import FrameResult, Method, MethodStream, available_methods, create_method, is_available
+    from .methods import (
+        METHOD_NAMES,
+        FrameResult,
+        Method,
+        MethodStream,
+        available_methods,
+        create_method,
+        is_available,
+        method_problem,
+    )
     from .methods.rnn import parse_model_size
     from .methods.zerodce_train import train_zerodce
     from .model import GammaNet
@@ -182,6 +193,7 @@ __all__ = [
     "InputError",
     "LoadedWeights",
     "MANIFEST_FILE",
+    "METHOD_NAMES",
     "ManifestError",
     "Method",
     "MethodSpec",
@@ -224,6 +236,7 @@ __all__ = [
     "load_content_mask",
     "load_weights",
     "method_for",
+    "method_problem",
     "network_threads",
     "onnx_sidecar_path",
     "output_lock",

@@ -96,3 +96,16 @@ def os_error_cause(exc: OSError) -> str:
     if exc.errno == errno.ENOTDIR:
         return "a parent of it is a file, not a folder"
     return exc.strerror or str(exc)
+
+
+#: Words of a loader's error that mean memory ran short (a limit such as ``ulimit -v``), not a missing package.
+_SHORT_OF_MEMORY = ("failed to map segment", "cannot allocate memory", "out of memory")
+
+
+def load_failure_cause(exc: BaseException) -> str:
+    """What an import that failed says, in one line, with a hint when memory ran short: under a limit such as
+    ``ulimit -v`` torch's and FFmpeg's libraries fail to map, which reads like a broken installation."""
+    cause = " ".join(f"{type(exc).__name__}: {exc}".split()) if str(exc) else type(exc).__name__
+    if isinstance(exc, MemoryError) or any(word in cause.lower() for word in _SHORT_OF_MEMORY):
+        cause += " (too little memory to load the libraries: a limit such as `ulimit -v`?)"
+    return cause

@@ -9,7 +9,7 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from ..errors import OptionError
+from ..errors import OptionError, load_failure_cause
 from .base import FrameResult, Method, MethodStream
 
 # name -> "module:Class"; the class's constructor takes the method's options as keyword arguments.
@@ -26,20 +26,33 @@ _REGISTRY: dict[str, str] = {
 }
 
 
+#: Every method's name, whether or not its implementation loads here.
+METHOD_NAMES: tuple[str, ...] = tuple(_REGISTRY)
+
+
 def _load(name: str) -> type[Method]:
     module_name, _, class_name = _REGISTRY[name].partition(":")
     return getattr(importlib.import_module(module_name), class_name)  # type: ignore[no-any-return]
 
 
-def is_available(name: str) -> bool:
-    """True if ``name`` is a known method whose implementation imports; imports that method's module only."""
+def method_problem(name: str) -> str | None:
+    """Why ``name`` cannot be used here, as one line, or None when it can (imports that method's module only).
+
+    An unknown name and an implementation that does not load are told apart: under a memory limit torch's
+    libraries fail to map, and "unknown method 'rnn'" sent the user to check a name that was right.
+    """
     if name not in _REGISTRY:
-        return False
+        return f"unknown method {name!r}; available: {', '.join(available_methods())}"
     try:
         _load(name)
-    except (ImportError, AttributeError):
-        return False
-    return True
+    except (ImportError, AttributeError, MemoryError, OSError) as exc:
+        return f"method {name!r} cannot be loaded here: {load_failure_cause(exc)}"
+    return None
+
+
+def is_available(name: str) -> bool:
+    """True if ``name`` is a known method whose implementation imports; imports that method's module only."""
+    return name in _REGISTRY and method_problem(name) is None
 
 
 def available_methods() -> list[str]:
@@ -58,4 +71,13 @@ def create_method(name: str, **options: Any) -> Method:
     return cls(**options)
 
 
-__all__ = ["FrameResult", "Method", "MethodStream", "available_methods", "create_method", "is_available"]
+__all__ = [
+    "METHOD_NAMES",
+    "FrameResult",
+    "Method",
+    "MethodStream",
+    "available_methods",
+    "create_method",
+    "is_available",
+    "method_problem",
+]

@@ -1,5 +1,5 @@
 """Commands started in a process they cannot use as it is: a standard stream closed (``2>&-``, ``>&-``, ``<&-``,
-or a parent that closed it), or a current folder that was deleted.
+or a parent that closed it), a current folder that was deleted, or a memory limit too small for the libraries.
 
 Defects found: ``enhance`` with standard error closed did all its work and then exited 1 (an AttributeError, out of
 sight, on flushing a stream Python had set to None); ``stream -`` with standard input closed, and ``stream --pipe``
@@ -95,3 +95,36 @@ def test_a_deleted_current_folder_is_one_line(clips: Path, tmp_path: Path, modul
     assert done.returncode == 1, output
     assert output == "error: the current folder no longer exists (deleted, or moved away): cd to one that does\n"
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("limit_mb", [300, 800])
+def test_a_memory_limit_too_small_for_the_libraries_is_one_line_naming_it(
+    clips: Path, tmp_path: Path, limit_mb: int
+) -> None:
+    """Under an address-space limit (``ulimit -v``) the libraries fail to map: at 300 MB the command's own imports
+    (numpy's OpenBLAS, FFmpeg's libavcodec), at 800 MB torch's. Each was a traceback, and torch's was "unknown
+    method 'rnn'", which sent the user to check a name that was right."""
+    import resource
+
+    limit = limit_mb * 2**20
+    done = subprocess.run(
+        colonlight_command("enhance", clips, "-o", tmp_path / "out"),
+        env={**colonlight_env(), **PLAIN_CONSOLE},
+        capture_output=True,
+        text=True,
+        preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_AS, (limit, limit)),
+        timeout=120,
+        check=False,
+    )
+    output = done.stdout + done.stderr
+    assert done.returncode == 1, output
+    lines = output.splitlines()
+    assert len(lines) == 1 and "too little memory to load the libraries: a limit such as `ulimit -v`?" in lines[0]
+    assert lines[0].startswith(("error: cannot load colonlight's libraries: ", "error: method 'rnn' cannot be loaded"))
+
+
+def test_an_unknown_method_and_one_that_does_not_load_are_told_apart() -> None:
+    from colonlight import METHOD_NAMES, method_problem
+
+    assert method_problem("rnn") is None and "rnn" in METHOD_NAMES
+    assert method_problem("nope") == f"unknown method 'nope'; available: {', '.join(METHOD_NAMES)}"
