@@ -109,3 +109,13 @@ def load_failure_cause(exc: BaseException) -> str:
     if isinstance(exc, MemoryError) or any(word in cause.lower() for word in _SHORT_OF_MEMORY):
         cause += " (too little memory to load the libraries: a limit such as `ulimit -v`?)"
     return cause
+
+
+def resource_shortage(exc: BaseException) -> str | None:
+    """The words for an exception that means the machine ran short (memory, or a thread that could not start),
+    else None: such a clip failed for want of resources, not by an internal error worth a bug report."""
+    if isinstance(exc, MemoryError):
+        return "out of memory (too little memory, or a limit such as `ulimit -v`)"
+    if isinstance(exc, RuntimeError) and "can't start new thread" in str(exc):
+        return "cannot start a thread (too little memory, or a limit such as `ulimit -u` or `ulimit -v`)"
+    return None

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .errors import ColonlightError
+from .errors import ColonlightError, resource_shortage
 from .frames import list_image_frames
 from .limits import DEFAULT_METHOD
 from .methods import Method, create_method
@@ -146,6 +146,9 @@ def engine_wording(job: ClipJob, exc: Exception) -> tuple[str, str | None]:
         if exc.errno in _NO_ROOM or _is_under(exc.filename, job.out_dir):
             discard_partial_outputs(job.out_dir)
         return line, traceback.format_exc()
+    shortage = resource_shortage(exc)
+    if shortage is not None:
+        return f"{job.source}: {shortage}", traceback.format_exc()
     return f"{job.source}: internal error: {type(exc).__name__}: {exc}", traceback.format_exc()
 
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from colonlight import ClipJob, ClipOptions, ClipOutcome, ColonlightError, Method, MethodSpec, run_clip
+from colonlight.errors import resource_shortage
 
 from .errors import is_disk_full
 
@@ -108,6 +109,9 @@ def service_wording(job: ClipJob, exc: Exception) -> tuple[str, str | None]:
         return NO_SPACE, DISK_FULL
     if isinstance(exc, (ColonlightError, ValueError)):  # a ValueError from deep in a clip is the clip's, too
         return str(exc), None
+    shortage = resource_shortage(exc)
+    if shortage is not None:
+        return shortage, traceback.format_exc()
     return f"internal error: {type(exc).__name__}: {exc}", traceback.format_exc()
 
 

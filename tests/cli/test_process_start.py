@@ -128,3 +128,14 @@ def test_an_unknown_method_and_one_that_does_not_load_are_told_apart() -> None:
 
     assert method_problem("rnn") is None and "rnn" in METHOD_NAMES
     assert method_problem("nope") == f"unknown method 'nope'; available: {', '.join(METHOD_NAMES)}"
+
+
+def test_a_clip_that_ran_short_of_memory_or_threads_is_not_an_internal_error() -> None:
+    """Under ``ulimit -v`` of 1.6 GB a clip failed with "internal error: RuntimeError: can't start new thread",
+    which reads like a bug; both shortages now say what ran short (a clip's line and a job's error)."""
+    from colonlight.errors import resource_shortage
+
+    assert resource_shortage(MemoryError()) == "out of memory (too little memory, or a limit such as `ulimit -v`)"
+    thread = resource_shortage(RuntimeError("can't start new thread"))
+    assert thread is not None and thread.startswith("cannot start a thread")
+    assert resource_shortage(RuntimeError("a bug")) is None and resource_shortage(ValueError()) is None
