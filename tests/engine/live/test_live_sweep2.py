@@ -15,6 +15,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import av
@@ -288,6 +289,29 @@ def test_sigterm_mid_stream_leaves_every_output_whole(tmp_path: Path, clips: dic
         assert sum(1 for _ in c.decode(video=0)) == len(records)
 
 
+def _y4m(clip: Path) -> bytes:
+    exe = ffmpeg_exe()
+    assert exe is not None
+    cmd = [exe, "-v", "error", "-nostdin", "-i", str(clip), "-f", "yuv4mpegpipe", "-"]
+    return subprocess.run(cmd, check=True, capture_output=True).stdout
+
+
+@contextlib.contextmanager
+def _fed_and_left_open(proc: subprocess.Popen[bytes], data: bytes) -> Iterator[None]:
+    """``data`` written to ``proc``'s standard input, which stays open and silent for the block (not communicate(),
+    which would close it: an end of the source); then the process is killed if it still runs."""
+    assert proc.stdin is not None
+    try:
+        proc.stdin.write(data)
+        proc.stdin.flush()
+        yield
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+        proc.stdin.close()
+
+
 @pytest.mark.parametrize("ending", ["ctrl-c", "duration"])
 def test_a_source_gone_silent_does_not_hold_the_end_for_its_timeout(
     tmp_path: Path, clips: dict[str, Path], ending: str
@@ -295,13 +319,6 @@ def test_a_source_gone_silent_does_not_hold_the_end_for_its_timeout(
     """Standard input that gave its frames and then says nothing (the writer alive, the pipe open): Ctrl-C, or the
     duration, ends the run at once, not a ``--timeout`` (60 s here) later, and the outputs are whole. The end used
     to wait for the reader, blocked in its read, for the timeout + 1 s."""
-    exe = ffmpeg_exe()
-    assert exe is not None
-    y4m = subprocess.run(
-        [exe, "-v", "error", "-nostdin", "-i", str(clips["live"]), "-f", "yuv4mpegpipe", "-"],
-        check=True,
-        capture_output=True,
-    ).stdout
     out = tmp_path / "out"
     until = ("--duration", "6") if ending == "duration" else ()
     t0 = time.monotonic()
@@ -317,21 +334,13 @@ def test_a_source_gone_silent_does_not_hold_the_end_for_its_timeout(
         stdin=subprocess.PIPE,
         stdout=subprocess.DEVNULL,
     )
-    assert proc.stdin is not None
-    try:
-        proc.stdin.write(y4m)  # 150 frames at 30 fps: 90 at 18 fps; the pipe stays open and silent
-        proc.stdin.flush()
+    with _fed_and_left_open(proc, _y4m(clips["live"])):  # 150 frames at 30 fps: 90 at 18 fps
         _wait_for_records(out, 90, proc)
         if ending == "ctrl-c":
             t0 = time.monotonic()
             proc.send_signal(signal.SIGINT)
-        proc.wait(45)  # not communicate(), which would close standard input: an end of the source
+        proc.wait(45)
         took = time.monotonic() - t0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(10)
-        proc.stdin.close()
     assert proc.stderr is not None
     err = proc.stderr.read().decode(errors="replace")
     assert "Traceback" not in err, err
@@ -343,13 +352,6 @@ def test_a_source_gone_silent_does_not_hold_the_end_for_its_timeout(
     summary = json.loads((out / "stream.json").read_text())["summary"]
     assert summary["end"] == end and summary["frames_decoded"] == 150
     assert summary["frames_out"] == len(records) == 90 and [r["index"] for r in records] == _frames(out)
-
-
-def _y4m(clip: Path) -> bytes:
-    exe = ffmpeg_exe()
-    assert exe is not None
-    cmd = [exe, "-v", "error", "-nostdin", "-i", str(clip), "-f", "yuv4mpegpipe", "-"]
-    return subprocess.run(cmd, check=True, capture_output=True).stdout
 
 
 #: A library caller reading standard input: it stops the run once every frame it was given is read, the pipe still
@@ -387,19 +389,12 @@ def test_a_library_stop_on_a_silent_standard_input_ends_its_read_too(clips: dict
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
     )
-    assert proc.stdin is not None and proc.stdout is not None and proc.stderr is not None
-    try:
-        proc.stdin.write(_y4m(clips["live"]))  # 150 frames; the pipe stays open
-        proc.stdin.flush()
+    assert proc.stdout is not None and proc.stderr is not None
+    with _fed_and_left_open(proc, _y4m(clips["live"])):  # 150 frames
         line = proc.stdout.readline().decode()
         t0 = time.monotonic()
-        code = proc.wait(30)  # not communicate(), which would close standard input: an end of the source
+        code = proc.wait(30)
         exit_s = time.monotonic() - t0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(10)
-        proc.stdin.close()
     err = proc.stderr.read().decode(errors="replace")
     assert code == 0 and "Traceback" not in err, err
     end, decoded, closed, close_s = line.rsplit(" ", 3)
