@@ -4,12 +4,11 @@ SIGTERM then (``kill``, ``docker stop`` right after a start) likewise, with exit
 
 from __future__ import annotations
 
-import os
 import signal
 import sys
 
 from .interrupts import exit_code, signals_interrupt
-from .process_start import fill_closed_standard_streams, refuse_a_deleted_working_folder
+from .process_start import debug_requested, fill_closed_standard_streams, refuse_a_deleted_working_folder
 
 
 def run() -> None:
@@ -24,7 +23,7 @@ def run() -> None:
             sys.stderr.write("error: interrupted\n")
             raise SystemExit(exit_code(received)) from None
         except (ImportError, MemoryError, OSError) as exc:  # libraries that do not load (under a memory limit)
-            if os.environ.get("COLONLIGHT_DEBUG", "") not in ("", "0") or "--debug" in sys.argv:
+            if debug_requested():
                 raise
             from colonlight.errors import load_failure_cause
 

@@ -6,7 +6,6 @@ line; ``--debug`` (or ``COLONLIGHT_DEBUG=1``) shows tracebacks.
 
 from __future__ import annotations
 
-import os
 import sys
 
 import typer
@@ -17,7 +16,7 @@ from . import content, demo, enhance, evaluate, export, info, stream, synth, tra
 from .display import FlagsWithoutType, error_line
 from .failures import FAILED, USAGE
 from .interrupts import INTERRUPTED
-from .process_start import fill_closed_standard_streams, refuse_a_deleted_working_folder
+from .process_start import debug_requested, fill_closed_standard_streams, refuse_a_deleted_working_folder
 
 app = typer.Typer(
     name="colonlight",
@@ -58,7 +57,7 @@ def run() -> None:
     """Console-script entry: run the app, turning expected errors into one line and exit code 1."""
     fill_closed_standard_streams()  # (again: ``python -m colonlight_cli.main`` starts here)
     refuse_a_deleted_working_folder()
-    debug = os.environ.get("COLONLIGHT_DEBUG", "") not in ("", "0") or "--debug" in sys.argv
+    debug = debug_requested()
     try:
         app()
     except ColonlightError as exc:

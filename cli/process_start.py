@@ -6,7 +6,7 @@ and whatever is then written to that stream (by Python, FFmpeg or a library that
 ``sys.stderr`` is) would land in the output. Each closed one is opened on the null device first. ``sys.stdin`` and
 ``sys.stdout`` stay None, so that ``stream -`` and ``stream --pipe`` can say which one was closed; ``sys.stderr``
 becomes a writer to the null device, so that a command's report is dropped, not a crash. A current folder that
-no longer exists is refused in one line.
+no longer exists is refused in one line. Whether tracebacks were asked for is decided here, before typer parses.
 """
 
 from __future__ import annotations
@@ -38,3 +38,9 @@ def refuse_a_deleted_working_folder() -> None:
     except FileNotFoundError:
         sys.stderr.write("error: the current folder no longer exists (deleted, or moved away): cd to one that does\n")
         raise SystemExit(1) from None
+
+
+def debug_requested() -> bool:
+    """``--debug`` anywhere on the command line, or ``COLONLIGHT_DEBUG`` set (not to 0): show tracebacks. Read from
+    the raw arguments, as the entry point needs it before (or without) typer's parsing."""
+    return os.environ.get("COLONLIGHT_DEBUG", "") not in ("", "0") or "--debug" in sys.argv

@@ -258,9 +258,9 @@ def stream(
 
 
 def _end_now(code: int) -> NoReturn:
-    """End the process now, everything written and closed: the run left its reader in a read of a source gone
-    silent (up to --timeout; a network source's), and the interpreter must not be torn down under
-    a thread inside FFmpeg (the library's exit hook would instead wait for it)."""
+    """End the process now, everything written and closed: the run left its reader in a read of a network source
+    gone silent (up to --timeout), and the interpreter must not be torn down under a thread inside FFmpeg (the
+    library's exit hook would instead wait for it)."""
     import logging
     import os
 
