@@ -13,14 +13,18 @@ from __future__ import annotations
 
 import json
 import os
+import signal
+import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
 from ..commands import PLAIN_CONSOLE, colonlight_command, colonlight_env
-from ..media import ffmpeg_fps_indices, make_clip, needs_ffmpeg
+from ..media import X264, ffmpeg_exe, ffmpeg_fps_indices, make_clip, needs_ffmpeg
+from ..ports import free_port
 
 pytestmark = needs_ffmpeg
 
@@ -139,3 +143,40 @@ def test_a_clip_that_ran_short_of_memory_or_threads_is_not_an_internal_error() -
     thread = resource_shortage(RuntimeError("can't start new thread"))
     assert thread is not None and thread.startswith("cannot start a thread")
     assert resource_shortage(RuntimeError("a bug")) is None and resource_shortage(ValueError()) is None
+
+
+def test_a_stop_on_a_silent_network_source_with_standard_output_closed_ends_cleanly(tmp_path: Path) -> None:
+    """``stream udp://... -o DIR >&-``, stopped with Ctrl-C while its source is silent: the command ends at once
+    without waiting for the read it leaves behind, flushing its streams first. It flushed a ``sys.stdout`` that was
+    None: a traceback, exit 1, and the interpreter's exit then waited out the 30 s read timeout."""
+    exe = ffmpeg_exe()
+    assert exe is not None
+    clip = make_clip(tmp_path / "clip.ts", 30, 30, (128, 96), codec_args=(*X264, "-g", "15"))
+    port = free_port(socket.SOCK_DGRAM, range(18800, 18850))
+    args = ("stream", f"udp://127.0.0.1:{port}", "-o", tmp_path / "out", "-m", "none", "--timeout", "30")
+    proc = subprocess.Popen(
+        colonlight_command(*args),
+        env={**colonlight_env(), **PLAIN_CONSOLE},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: os.close(1),
+    )
+    assert proc.stderr is not None
+    try:
+        assert "waiting for frames" in proc.stderr.readline()
+        udp = f"udp://127.0.0.1:{port}?pkt_size=1316"
+        subprocess.run([exe, "-v", "error", "-nostdin", "-re", "-i", str(clip), "-c", "copy", "-f", "mpegts", udp])
+        time.sleep(1.0)  # silent now, the read waiting out its timeout
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        code = proc.wait(60)
+        took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    err = proc.stderr.read()
+    assert code == 0 and "Traceback" not in err and "ended: stopped (Ctrl-C)" in err, err
+    assert took < 10, took
+    assert json.loads((tmp_path / "out" / "stream.json").read_text())["summary"]["frames_decoded"] > 0
