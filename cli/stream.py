@@ -184,13 +184,11 @@ def stream(
         raise typer.BadParameter(f"choose {' or '.join(PIPE_FORMATS)}", param_hint="--pipe")
     if output is None and pipe is None:
         raise typer.BadParameter("nothing to write: give --output DIR and/or --pipe y4m|mpegts")
-    if pipe is not None and (sys.stdout is None or sys.stdout.isatty()):  # None: started with standard output closed
-        state = "closed" if sys.stdout is None else "a terminal"
+    if pipe is not None and (state := _unusable(sys.stdout)):
         raise typer.BadParameter(
             f"standard output is {state}: send it to a program (| consumer) or a file", param_hint="--pipe"
         )
-    if source == "-" and (sys.stdin is None or sys.stdin.isatty()):
-        state = "closed" if sys.stdin is None else "a terminal"
+    if source == "-" and (state := _unusable(sys.stdin)):
         raise typer.BadParameter(
             f"standard input is {state}: pipe a stream into it (producer | colonlight stream -)", param_hint="SRC"
         )
@@ -255,6 +253,14 @@ def stream(
         _end_now(1 if summary.error else 0)
     if summary.error:
         raise typer.Exit(1)
+
+
+def _unusable(stream: Any) -> str | None:
+    """Why a standard stream cannot carry the video ("closed": Python set it to None, the command was started
+    without it; "a terminal"), or None when it can."""
+    if stream is None:
+        return "closed"
+    return "a terminal" if stream.isatty() else None
 
 
 def _end_now(code: int) -> NoReturn:
